@@ -1,0 +1,81 @@
+"""A thin wrapper owning one PyBullet physics client, so that many environments live in one process."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+import pybullet_data
+from pybullet_utils.bullet_client import BulletClient
+
+
+class Simulator:
+    """One PyBullet world: a :class:`BulletClient` (DIRECT unless ``render_mode == "human"``), its time
+    step and the camera.
+
+    :param timestep: physics time step (s).
+    :param substeps: physics steps per call of :meth:`step`.
+    :param render_mode: ``"human"`` opens PyBullet's GUI; anything else is headless.
+    :param render_width: width of :meth:`render` frames (pixels).
+    :param render_height: height of :meth:`render` frames (pixels).
+    """
+
+    def __init__(
+        self,
+        timestep: float,
+        substeps: int = 1,
+        render_mode: str | None = None,
+        render_width: int = 480,
+        render_height: int = 360,
+    ) -> None:
+        self.render_mode = render_mode
+        mode = pybullet.GUI if render_mode == "human" else pybullet.DIRECT
+        self.client = BulletClient(connection_mode=mode)
+        self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
+        if render_mode == "human":
+            self.client.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)
+        # One stepSimulation call runs all substeps inside Bullet; an external force applied before it
+        # acts during the whole control step. Deterministic overlapping pairs make restoreState exact.
+        self.client.setPhysicsEngineParameter(
+            fixedTimeStep=timestep * substeps, numSubSteps=substeps, deterministicOverlappingPairs=1
+        )
+        self.render_width = render_width
+        self.render_height = render_height
+        self._view = self.client.computeViewMatrixFromYawPitchRoll(
+            cameraTargetPosition=[0.45, 0.0, 0.15], distance=1.1, yaw=50.0, pitch=-30.0, roll=0.0, upAxisIndex=2
+        )
+        self._projection = self.client.computeProjectionMatrixFOV(
+            fov=60.0, aspect=render_width / render_height, nearVal=0.05, farVal=5.0
+        )
+        # BulletClient resolves every attribute through inspect and functools.partial: bind the calls
+        # made at every step once.
+        self.step_simulation = self.client.stepSimulation
+
+    @property
+    def id(self) -> int:
+        """PyBullet's id of this client."""
+        return self.client._client
+
+    def step(self) -> None:
+        """Advance the world by one control step (``substeps`` physics steps)."""
+        self.step_simulation()
+
+    def save_state(self) -> int:
+        """Save the whole world state in memory and return its id."""
+        return self.client.saveState()
+
+    def restore_state(self, state_id: int) -> None:
+        """Restore a state saved by :meth:`save_state` (positions, velocities and contacts)."""
+        self.client.restoreState(stateId=state_id)
+
+    def render(self) -> np.ndarray:
+        """An RGB frame (height x width x 3, uint8) from a fixed camera looking at the tray."""
+        renderer = pybullet.ER_BULLET_HARDWARE_OPENGL if self.render_mode == "human" else pybullet.ER_TINY_RENDERER
+        _, _, rgba, _, _ = self.client.getCameraImage(
+            self.render_width, self.render_height, self._view, self._projection, renderer=renderer
+        )
+        return np.asarray(rgba, dtype=np.uint8).reshape(self.render_height, self.render_width, 4)[:, :, :3]
+
+    def close(self) -> None:
+        """Disconnect the client (idempotent)."""
+        if self.client._client >= 0:
+            self.client.disconnect()
