@@ -28,6 +28,10 @@ class GraspConfig:
     :param arm_motor_force: maximum torque of each of the 7 arm joint motors (N m).
     :param finger_motor_force: maximum force of each finger motor (N). The URDF's 20 N lets the
         low-friction cylinder slip.
+    :param finger_contact_stiffness: contact stiffness of the finger pads (N/m). The URDF's 30,000 lets a
+        60 N grip sink 1 cm into each side of the object, and the stored spring launches an object that
+        slips out metres away; at 1e6 the pads sink 1.6 mm.
+    :param finger_contact_damping: contact damping of the finger pads (N s/m).
     :param arm_max_delta: largest change of an arm joint target per step in ``"delta"`` action mode (rad).
     :param finger_max_delta: largest change of a finger target per step in ``"delta"`` action mode (m).
     :param object_radius: cylinder radius (m).
@@ -56,6 +60,8 @@ class GraspConfig:
     gravity: float = -10.0
     arm_motor_force: float = 100.0
     finger_motor_force: float = 60.0
+    finger_contact_stiffness: float = 1.0e6
+    finger_contact_damping: float = 3000.0
     arm_max_delta: float = 0.05
     finger_max_delta: float = 0.01
     object_radius: float = 0.02

@@ -51,6 +51,17 @@ class Panda:
         self.max_delta = np.array([config.arm_max_delta] * n_arm + [config.finger_max_delta] * len(FINGER_JOINTS))
         self._client_id = sim.id
         self._forces = self.motor_forces.tolist()
+        # PyBullet ignores the URDF's velocity limits (changeDynamics' maxJointVelocity caps every joint of
+        # the body at once). Without the fingers' 0.2 m/s, a finger closing on an escaping object pinches it
+        # at metres per second and launches it out of the scene.
+        for joint in FINGER_JOINTS:
+            client.changeDynamics(
+                self.body,
+                joint,
+                contactStiffness=config.finger_contact_stiffness,
+                contactDamping=config.finger_contact_damping,
+            )
+        self.finger_max_velocities = [infos[JOINTS.index(joint)][11] for joint in FINGER_JOINTS]
 
     @property
     def action_space(self) -> spaces.Box:
@@ -67,14 +78,27 @@ class Panda:
 
     def set_joint_targets(self, targets: np.ndarray) -> None:
         """Send 9 joint targets (within the limits) to the position controllers."""
+        n_arm = len(ARM_JOINTS)
         pybullet.setJointMotorControlArray(
             self.body,
-            JOINTS,
+            ARM_JOINTS,
             pybullet.POSITION_CONTROL,
-            targetPositions=targets.tolist(),
-            forces=self._forces,
+            targetPositions=targets[:n_arm].tolist(),
+            forces=self._forces[:n_arm],
             physicsClientId=self._client_id,
         )
+        for joint, target, force, max_velocity in zip(
+            FINGER_JOINTS, targets[n_arm:].tolist(), self._forces[n_arm:], self.finger_max_velocities
+        ):
+            pybullet.setJointMotorControl2(
+                self.body,
+                joint,
+                pybullet.POSITION_CONTROL,
+                targetPosition=target,
+                force=force,
+                maxVelocity=max_velocity,
+                physicsClientId=self._client_id,
+            )
 
     def joint_positions(self) -> np.ndarray:
         """Positions of the 9 controlled joints (rad, m)."""

@@ -40,7 +40,12 @@ class GraspTask:
         radius, height = config.object_radius, config.object_height
         collision = client.createCollisionShape(pybullet.GEOM_CYLINDER, radius=radius, height=height)
         visual = client.createVisualShape(pybullet.GEOM_CYLINDER, radius=radius, length=height, rgbaColor=[0.9, 0.2, 0.1, 1])
-        self.object = client.createMultiBody(config.object_mass, collision, visual, [TRAY_POSITION[0], 0.0, 0.2])
+        self.object = client.createMultiBody(
+            config.object_mass, collision, visual, [TRAY_POSITION[0], 0.0, 0.2], useMaximalCoordinates=True
+        )
+        # Continuous collision detection (for maximal-coordinate bodies only): a knocked or flung cylinder
+        # must not tunnel through the 2 cm tray floor.
+        client.changeDynamics(self.object, -1, ccdSweptSphereRadius=0.9 * radius)
         self.physics: dict[str, float] = {}
         self._force_applied = False
         self._client_id = sim.id
@@ -104,4 +109,4 @@ class GraspTask:
     def is_success(self, object_height: float) -> bool:
         """The object's centre is at ``success_height`` or above and both fingers hold it (a flung object
         does not count)."""
-        return object_height >= self.config.success_height and self.is_held()
+        return bool(object_height >= self.config.success_height) and self.is_held()

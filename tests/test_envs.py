@@ -1,0 +1,249 @@
+"""Behaviour of the three grasping tasks."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gymnasium_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import envs
+from envs.task import TRAY_FLOOR_HEIGHT, TRAY_POSITION
+
+ACTION_MODES = ["absolute", "delta"]
+
+
+def rollout(env: gym.Env, actions: np.ndarray, seed: int) -> np.ndarray:
+    observations = [env.reset(seed=seed)[0]]
+    for action in actions:
+        observations.append(env.step(action)[0])
+    return np.stack(observations)
+
+
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+def test_random_rollout_stays_in_spaces(env_id, action_mode, make_env):
+    env = make_env(env_id, action_mode=action_mode)
+    env.action_space.seed(0)
+    observation, info = env.reset(seed=0)
+    assert observation.shape == (29,) and observation.dtype == np.float32
+    assert info["is_success"] is False
+    for _ in range(100):
+        observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert env.observation_space.contains(observation)
+        assert np.all(np.isfinite(observation))
+        assert reward == float(info["is_success"])
+        assert terminated == info["is_success"] and not truncated
+
+
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+def test_gymnasium_and_sb3_env_checkers_pass(env_id, action_mode, make_env):
+    gymnasium_check_env(make_env(env_id, action_mode=action_mode).unwrapped, skip_render_check=True)
+    sb3_check_env(make_env(env_id, action_mode=action_mode).unwrapped, warn=False)
+
+
+def test_same_seed_and_actions_give_identical_observations(env_id, make_env):
+    env, other = make_env(env_id), make_env(env_id)
+    actions = np.random.default_rng(1).uniform(env.action_space.low, env.action_space.high, size=(40, 9))
+    first = rollout(env, actions, seed=7)
+    rollout(env, actions[::-1], seed=8)  # an episode in between must not leak into the next one
+    np.testing.assert_array_equal(rollout(env, actions, seed=7), first)
+    np.testing.assert_array_equal(rollout(other, actions, seed=7), first)
+    assert not np.array_equal(rollout(other, actions, seed=9)[0], first[0])
+
+
+def test_reset_with_seed_then_without_is_deterministic(env_id, make_env):
+    env, other = make_env(env_id), make_env(env_id)
+    env.reset(seed=3)
+    other.reset(seed=3)
+    first, info = env.reset()
+    second, other_info = other.reset()
+    np.testing.assert_array_equal(first, second)
+    assert info == other_info
+
+
+def test_render_returns_rgb_frame(env_id, make_env):
+    env = make_env(env_id, render_mode="rgb_array", render_width=64, render_height=48)
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8
+    assert frame.std() > 0
+
+
+@pytest.mark.parametrize("bad_value", [np.nan, np.inf, -np.inf])
+def test_non_finite_action_raises(bad_value, make_env):
+    env = make_env("Panda-v0")
+    env.reset(seed=0)
+    action = np.zeros(9)
+    action[3] = bad_value
+    with pytest.raises(ValueError, match="finite"):
+        env.step(action)
+
+
+def test_wrong_action_shape_raises(make_env):
+    env = make_env("Panda-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(7))
+
+
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+def test_out_of_bounds_actions_are_clipped(action_mode, make_env):
+    env = make_env("Panda-v0", action_mode=action_mode)
+    robot = env.unwrapped.robot  # the float64 limits the float32 action space rounds
+    low, high = (robot.lower_limits, robot.upper_limits) if action_mode == "absolute" else (-1.0, 1.0)
+    beyond = np.where(np.arange(9) % 2 == 0, high + 5.0, low - 5.0)
+    at_bounds = np.where(np.arange(9) % 2 == 0, high, low)
+    np.testing.assert_array_equal(rollout(env, [beyond] * 5, seed=0), rollout(env, [at_bounds] * 5, seed=0))
+
+
+def test_action_space_is_joint_limits_or_unit_box(make_env):
+    absolute = make_env("Panda-v0").action_space
+    assert absolute.shape == (9,)
+    assert absolute.low[3] == pytest.approx(-3.1416) and absolute.high[3] == 0.0
+    assert absolute.low[7] == 0.0 and absolute.high[7] == pytest.approx(0.04)
+    delta = make_env("Panda-v0", action_mode="delta").action_space
+    assert np.all(delta.low == -1.0) and np.all(delta.high == 1.0)
+
+
+def test_zero_delta_action_holds_the_arm(make_env):
+    env = make_env("Panda-v0", action_mode="delta")
+    observations = rollout(env, [np.zeros(9)] * 20, seed=0)
+    np.testing.assert_allclose(observations[-1, :9], observations[0, :9], atol=1e-3)
+
+
+def test_physics_keywords_reach_the_simulation(make_env):
+    env = make_env("Panda-v0", object_mass=0.5, object_lateral_friction=0.3, gravity=-9.81)
+    _, info = env.reset(seed=0)
+    assert info["object_mass"] == 0.5 and info["gravity"] == -9.81
+    unwrapped = env.unwrapped
+    dynamics = unwrapped.sim.client.getDynamicsInfo(unwrapped.task.object, -1)
+    assert dynamics[0] == pytest.approx(0.5) and dynamics[1] == pytest.approx(0.3)
+
+
+def test_unknown_keyword_raises_type_error():
+    with pytest.raises(TypeError, match="object_colour"):
+        gym.make("Panda-v0", object_colour="red")
+
+
+def test_unknown_action_mode_raises():
+    with pytest.raises(ValueError, match="action_mode"):
+        gym.make("Panda-v0", action_mode="velocity")
+
+
+def test_perturbed_env_samples_physics_from_its_ranges(make_env):
+    env = make_env("PandaPerturbed-v0")
+    config = env.unwrapped.config
+    samples = [env.reset(seed=seed)[1] for seed in range(20)]
+    for key, (low, high) in [
+        ("gravity", config.gravity_range),
+        ("object_mass", config.object_mass_range),
+        ("object_lateral_friction", config.object_friction_range),
+    ]:
+        values = np.array([info[key] for info in samples])
+        assert np.all((values >= low) & (values <= high))
+        assert values.std() > 0.1 * (high - low)
+    standard = make_env("Panda-v0").reset(seed=0)[1]
+    assert (standard["gravity"], standard["object_mass"], standard["object_lateral_friction"]) == (-10.0, 0.1, 0.1)
+
+
+def test_object_starts_resting_in_the_tray(env_id, make_env):
+    env = make_env(env_id)
+    config = env.unwrapped.config
+    for seed in range(5):
+        observation, _ = env.reset(seed=seed)
+        x, y, z = observation[envs.OBSERVATION_SLICES["object_position"]]
+        assert config.object_x_range[0] <= x <= config.object_x_range[1]
+        assert config.object_y_range[0] <= y <= config.object_y_range[1]
+        assert z == pytest.approx(TRAY_FLOOR_HEIGHT + config.object_height / 2, abs=0.005)
+
+
+def test_flung_object_is_not_a_success(make_env):
+    env = make_env("Panda-v0", action_mode="delta")
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+    unwrapped.sim.client.resetBasePositionAndOrientation(unwrapped.task.object, [0.6, 0.0, 0.6], [0, 0, 0, 1])
+    observation, reward, terminated, _, info = env.step(np.zeros(9))
+    assert observation[18] > 0.4
+    assert reward == 0.0 and not terminated and not info["is_success"]
+
+
+def test_episode_is_truncated_at_700_steps(make_env):
+    env = make_env("Panda-v0", action_mode="delta")
+    env.reset(seed=0)
+    for step in range(1, 701):
+        _, _, terminated, truncated, _ = env.step(np.zeros(9))
+        assert not terminated
+        assert truncated == (step == 700)
+
+
+def run_pd(env: gym.Env, controller: envs.PDController, seed: int) -> tuple[bool, list[dict]]:
+    observation, _ = env.reset(seed=seed)
+    infos, done = [], False
+    while not done:
+        action, _ = controller.predict(observation)
+        observation, _, terminated, truncated, info = env.step(action)
+        infos.append(info)
+        done = terminated or truncated
+    return infos[-1]["is_success"], infos
+
+
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+def test_pd_controller_solves_panda(action_mode, make_env):
+    env = make_env("Panda-v0", action_mode=action_mode)
+    controller = envs.PDController.for_env(env)
+    results = [run_pd(env, controller, seed) for seed in range(4)]
+    assert all(success for success, _ in results)
+    assert all(len(infos) < 300 for _, infos in results)
+
+
+def test_force_knocks_the_object_out_once(make_env):
+    env = make_env("PandaForce-v0")
+    controller = envs.PDController.for_env(env)
+    success, infos = run_pd(env, controller, seed=0)
+    assert sum(info["force_applied"] for info in infos) == 1
+    assert not success
+
+
+def test_pd_controller_works_with_sb3_evaluate_policy():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    vec_env = make_vec_env("Panda-v0", n_envs=2, seed=0)
+    controller = envs.PDController()
+    actions, _ = controller.predict(vec_env.reset())
+    assert actions.shape == (2, 9) and actions.dtype == np.float32
+    mean_reward, _ = evaluate_policy(controller, vec_env, n_eval_episodes=2)
+    assert mean_reward == 1.0
+    vec_env.close()
+
+
+def test_pd_controller_does_not_disturb_the_env(make_env):
+    env = make_env("Panda-v0")
+    observation, _ = env.reset(seed=0)
+    unwrapped = env.unwrapped
+    before = unwrapped.sim.client.getJointStates(unwrapped.robot.body, list(range(12)))
+    envs.PDController.for_env(env).predict(observation)
+    assert unwrapped.sim.client.getJointStates(unwrapped.robot.body, list(range(12))) == before
+
+
+def object_is_above_the_floor(position: np.ndarray, radius: float) -> bool:
+    """A resting cylinder's centre is at least its radius above whatever it lies on; allow half of it."""
+    x, y, z = position
+    in_tray = abs(x - TRAY_POSITION[0]) < 0.3 and abs(y - TRAY_POSITION[1]) < 0.3
+    return z >= (TRAY_FLOOR_HEIGHT if in_tray else 0.0) + radius / 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("n_episodes", [1000])
+def test_random_episodes_have_no_nan_or_tunnelling(env_id, n_episodes, make_env):
+    env = make_env(env_id)
+    env.action_space.seed(0)
+    radius = env.unwrapped.config.object_radius
+    for episode in range(n_episodes):
+        observation, _ = env.reset(seed=episode)
+        done = False
+        while not done:
+            observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            assert np.all(np.isfinite(observation)), f"NaN in episode {episode}"
+            position = observation[envs.OBSERVATION_SLICES["object_position"]]
+            assert object_is_above_the_floor(position, radius), f"object below the floor in episode {episode}: {position}"
+            done = terminated or truncated
