@@ -81,7 +81,7 @@ class PandaGraspEnv(gym.Env):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {action.shape}")
-        if not np.all(np.isfinite(action)):
+        if not np.isfinite(action).all():
             raise ValueError(f"action must be finite, got {action}")
         self.robot.set_joint_targets(self.robot.targets_from_action(action, self._joint_positions))
         force_applied = self.task.before_step(self._object_height)
@@ -93,19 +93,17 @@ class PandaGraspEnv(gym.Env):
 
     def _observe(self) -> np.ndarray:
         self._joint_positions = self.robot.joint_positions()
-        ee_position, ee_orientation, fingers = self.robot.link_poses()
+        ee_position, ee_orientation, left_finger, right_finger = self.robot.link_poses()
         object_position, object_orientation = self.task.object_pose()
         self._object_height = object_position[2]
-        return np.concatenate(
-            [
-                self._joint_positions,
-                ee_position,
-                ee_orientation,
-                object_position,
-                object_orientation,
-                (fingers - object_position).ravel(),
-            ]
-        ).astype(np.float32)
+        # Filled in place: this runs at every step, and one buffer costs less than a concatenation.
+        observation = np.empty(OBSERVATION_SIZE, dtype=np.float64)
+        observation[:9] = self._joint_positions
+        observation[9:23] = ee_position + ee_orientation + object_position + object_orientation
+        observation[23:26] = left_finger
+        observation[26:29] = right_finger
+        observation[23:29] -= object_position * 2
+        return observation.astype(np.float32)
 
     def render(self) -> np.ndarray | None:
         """An RGB frame in ``"rgb_array"`` mode; the GUI draws itself in ``"human"`` mode."""

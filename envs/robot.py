@@ -51,17 +51,10 @@ class Panda:
         self.max_delta = np.array([config.arm_max_delta] * n_arm + [config.finger_max_delta] * len(FINGER_JOINTS))
         self._client_id = sim.id
         self._forces = self.motor_forces.tolist()
-        # PyBullet ignores the URDF's velocity limits (changeDynamics' maxJointVelocity caps every joint of
-        # the body at once). Without the fingers' 0.2 m/s, a finger closing on an escaping object pinches it
-        # at metres per second and launches it out of the scene.
-        for joint in FINGER_JOINTS:
-            client.changeDynamics(
-                self.body,
-                joint,
-                contactStiffness=config.finger_contact_stiffness,
-                contactDamping=config.finger_contact_damping,
-            )
-        self.finger_max_velocities = [infos[JOINTS.index(joint)][11] for joint in FINGER_JOINTS]
+        # PyBullet ignores the URDF's joint velocity limits (and changeDynamics' maxJointVelocity caps every
+        # joint of a body at once): they are passed to each motor. Without them random targets swing the arm
+        # at tens of rad/s and a finger closing on an escaping object launches it out of the scene.
+        self._max_velocities = [info[11] for info in infos]
 
     @property
     def action_space(self) -> spaces.Box:
@@ -72,23 +65,14 @@ class Panda:
 
     def reset(self, joint_positions=HOME_JOINT_POSITIONS) -> None:
         """Teleport the joints to ``joint_positions`` at rest and hold them there."""
-        for joint, position in zip(JOINTS, joint_positions):
+        for joint, position in zip(JOINTS, joint_positions, strict=True):
             self.sim.client.resetJointState(self.body, joint, position, 0.0)
         self.set_joint_targets(np.asarray(joint_positions, dtype=np.float64))
 
     def set_joint_targets(self, targets: np.ndarray) -> None:
         """Send 9 joint targets (within the limits) to the position controllers."""
-        n_arm = len(ARM_JOINTS)
-        pybullet.setJointMotorControlArray(
-            self.body,
-            ARM_JOINTS,
-            pybullet.POSITION_CONTROL,
-            targetPositions=targets[:n_arm].tolist(),
-            forces=self._forces[:n_arm],
-            physicsClientId=self._client_id,
-        )
         for joint, target, force, max_velocity in zip(
-            FINGER_JOINTS, targets[n_arm:].tolist(), self._forces[n_arm:], self.finger_max_velocities
+            JOINTS, targets.tolist(), self._forces, self._max_velocities, strict=True
         ):
             pybullet.setJointMotorControl2(
                 self.body,
@@ -105,20 +89,20 @@ class Panda:
         states = pybullet.getJointStates(self.body, JOINTS, physicsClientId=self._client_id)
         return np.array([state[0] for state in states])
 
-    def link_poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """End-effector position (3), its orientation quaternion xyzw (4) and the two finger positions (2x3),
-        all in the world frame; a finger's position is its link's centre of mass."""
-        states = pybullet.getLinkStates(
-            self.body, (END_EFFECTOR_LINK, *FINGER_LINKS), computeForwardKinematics=1, physicsClientId=self._client_id
+    def link_poses(self) -> tuple[tuple[float, ...], ...]:
+        """End-effector position (3), its orientation quaternion xyzw (4) and the positions of the two fingers
+        (3 each), in the world frame as of the last simulation step; a finger's position is its link's centre
+        of mass."""
+        end_effector, left, right = pybullet.getLinkStates(
+            self.body, (END_EFFECTOR_LINK, *FINGER_LINKS), physicsClientId=self._client_id
         )
-        ee = states[0]
-        return np.array(ee[4]), np.array(ee[5]), np.array([states[1][0], states[2][0]])
+        return end_effector[4], end_effector[5], left[0], right[0]
 
     def targets_from_action(self, action: np.ndarray, joint_positions: np.ndarray) -> np.ndarray:
         """Joint targets for ``action`` given the current ``joint_positions``, clipped to the limits."""
         if self.action_mode == "delta":
             action = joint_positions + np.clip(action, -1.0, 1.0) * self.max_delta
-        return np.clip(action, self.lower_limits, self.upper_limits)
+        return action.clip(self.lower_limits, self.upper_limits)
 
     def action_from_targets(self, targets: np.ndarray, joint_positions: np.ndarray) -> np.ndarray:
         """The action that best requests ``targets`` from ``joint_positions`` (the inverse of
@@ -133,7 +117,7 @@ class Panda:
     ) -> np.ndarray:
         """Joint positions placing the end effector at ``position`` with ``orientation`` (xyzw), solved from
         ``joint_positions``. This teleports the robot: call it on a simulator of its own."""
-        for joint, value in zip(JOINTS, joint_positions):
+        for joint, value in zip(JOINTS, joint_positions, strict=True):
             self.sim.client.resetJointState(self.body, joint, value)
         solution = pybullet.calculateInverseKinematics(
             self.body,

@@ -80,10 +80,9 @@ class GraspTask:
         self.physics = {"gravity": gravity, "object_mass": mass, "object_lateral_friction": friction}
         return dict(self.physics)
 
-    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
+    def object_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """Object position (m) and orientation quaternion (xyzw) in the world frame."""
-        position, orientation = pybullet.getBasePositionAndOrientation(self.object, physicsClientId=self._client_id)
-        return np.array(position), np.array(orientation)
+        return pybullet.getBasePositionAndOrientation(self.object, physicsClientId=self._client_id)
 
     def before_step(self, object_height: float) -> bool:
         """Apply the one-time knock-out force if the object has just reached ``force_height``; return
@@ -93,9 +92,7 @@ class GraspTask:
             return False
         position, _ = self.object_pose()
         force = [config.force_magnitude * c for c in config.force_direction]
-        pybullet.applyExternalForce(
-            self.object, -1, force, position.tolist(), pybullet.WORLD_FRAME, physicsClientId=self._client_id
-        )
+        pybullet.applyExternalForce(self.object, -1, force, position, pybullet.WORLD_FRAME, physicsClientId=self._client_id)
         self._force_applied = True
         return True
 

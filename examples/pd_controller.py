@@ -1,7 +1,7 @@
-"""Run the scripted PD controller on a grasping task: print its success rate and save a video.
+"""Run the scripted PD controller on grasping tasks: print its success rates and save videos.
 
     python examples/pd_controller.py --env Panda-v0 --n-episodes 100 --video-folder videos
-    python examples/pd_controller.py --env PandaForce-v0 --n-episodes 20 --video-folder videos
+    python examples/pd_controller.py --env Panda-v0 PandaForce-v0 --n-episodes 5 --video-folder videos
 
 Headless: frames come from PyBullet's software renderer, so no display is needed.
 """
@@ -19,7 +19,12 @@ import envs
 
 
 def evaluate_pd_controller(
-    env_id: str, n_episodes: int, seed: int = 0, action_mode: str = "absolute", video_folder: str | None = None, n_videos: int = 1
+    env_id: str,
+    n_episodes: int,
+    seed: int = 0,
+    action_mode: str = "absolute",
+    video_folder: str | None = None,
+    n_videos: int = 1,
 ) -> list[bool]:
     """Run the PD controller for ``n_episodes`` episodes (episode ``i`` reset with ``seed + i``) and return
     the success of each; with ``video_folder``, the first ``n_videos`` episodes are saved as MP4 there."""
@@ -45,15 +50,19 @@ def evaluate_pd_controller(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="Panda-v0", choices=list(envs.ENV_IDS))
+    parser.add_argument("--env", nargs="+", default=["Panda-v0"], choices=list(envs.ENV_IDS), help="one or more env ids")
     parser.add_argument("--n-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0, help="episode i is reset with seed + i")
     parser.add_argument("--action-mode", default="absolute", choices=["absolute", "delta"])
     parser.add_argument("--video-folder", default=None, help="save the first episodes as MP4 here")
     parser.add_argument("--n-videos", type=int, default=1)
     args = parser.parse_args()
-    successes = evaluate_pd_controller(args.env, args.n_episodes, args.seed, args.action_mode, args.video_folder, args.n_videos)
-    print(f"PD controller on {args.env} ({args.action_mode}): success rate {np.mean(successes):.3f} over {len(successes)} episodes")
+    for env_id in args.env:
+        successes = evaluate_pd_controller(
+            env_id, args.n_episodes, args.seed, args.action_mode, args.video_folder, args.n_videos
+        )
+        rate = np.mean(successes)
+        print(f"PD controller on {env_id} ({args.action_mode}): success rate {rate:.3f} over {len(successes)} episodes")
     if args.video_folder:
         print(f"video(s) saved in {args.video_folder}/")
 
