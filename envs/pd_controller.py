@@ -70,6 +70,21 @@ class PDController:
         unwrapped = env.unwrapped
         return cls(unwrapped.action_mode, unwrapped.config, **kwargs)
 
+    def parameters(self) -> dict[str, float | list[float]]:
+        """The controller's gains and thresholds (recorded in the datasets it collects)."""
+        return {
+            "kp": self.kp,
+            "max_step": self.max_step,
+            "hover_height": HOVER_HEIGHT,
+            "grasp_offset": GRASP_OFFSET,
+            "coarse_xy_tolerance": COARSE_XY_TOLERANCE,
+            "grasp_xy_tolerance": GRASP_XY_TOLERANCE,
+            "grasp_z_tolerance": GRASP_Z_TOLERANCE,
+            "closed_margin": CLOSED_MARGIN,
+            "lift_height": LIFT_HEIGHT,
+            "hand_orientation": HAND_ORIENTATION.tolist(),
+        }
+
     def predict(
         self,
         observation: np.ndarray,

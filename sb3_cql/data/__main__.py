@@ -1,0 +1,74 @@
+"""Command line of the datasets: ``python -m sb3_cql.data collect ...`` and ``python -m sb3_cql.data info ID``.
+
+python -m sb3_cql.data collect --env Panda-v0 --policy pid --episodes 10000 --seed 0 --workers 2
+python -m sb3_cql.data collect --env Panda-v0 --policy noisy --noise 0.03 --episodes 1000
+python -m sb3_cql.data collect --env Panda-v0 --policy logs/sac/Panda-v0_1/best_model.zip --algo sac
+python -m sb3_cql.data mix --dataset-id sb3cql/Panda-v0/mixed-v0 sb3cql/Panda-v0/pid-v0 sb3cql/Panda-v0/noisy-v0
+python -m sb3_cql.data info sb3cql/Panda-v0/pid-v0
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import envs
+from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset, mix_datasets
+from sb3_cql.data.ids import POLICIES, dataset_path
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m sb3_cql.data", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    collect = commands.add_parser("collect", help="roll out a behaviour policy into a Minari dataset")
+    collect.add_argument("--env", default="Panda-v0", choices=list(envs.ENV_IDS))
+    collect.add_argument("--policy", default="pid", help=f"one of {POLICIES} or the path of a saved SB3 model")
+    collect.add_argument("--algo", default=None, help="the SB3/RL-Zoo3 algorithm of a model policy (sac, cql, ...)")
+    collect.add_argument("--episodes", type=int, default=10_000)
+    collect.add_argument("--seed", type=int, default=0, help="episode i is reset with seed + i")
+    collect.add_argument("--noise", type=float, default=None, help="std (rad) of noise on the executed arm targets")
+    collect.add_argument("--action-mode", default="absolute", choices=["absolute", "delta"])
+    collect.add_argument("--workers", type=int, default=1)
+    collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
+    collect.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that id")
+
+    mix = commands.add_parser("mix", help="combine existing datasets into a new one")
+    mix.add_argument("--dataset-id", required=True, help="id of the combined dataset")
+    mix.add_argument("sources", nargs="+", help="ids of the datasets to combine")
+    mix.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that id")
+
+    info = commands.add_parser("info", help="print a dataset's metadata")
+    info.add_argument("dataset_id")
+
+    args = parser.parse_args(argv)
+    if args.command == "collect":
+        spec = CollectionSpec(
+            env_id=args.env,
+            policy=args.policy,
+            n_episodes=args.episodes,
+            seed=args.seed,
+            noise=args.noise,
+            env_kwargs={"action_mode": args.action_mode} if args.action_mode != "absolute" else {},
+            algo=args.algo,
+        )
+        dataset = collect_dataset(spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite)
+        metadata = dataset.storage.metadata
+        print(
+            f"{metadata['dataset_id']}: {dataset.total_episodes} episodes, {dataset.total_steps} transitions, "
+            f"success rate {metadata['success_rate']:.3f}, at {dataset_path(metadata['dataset_id'])}"
+        )
+    elif args.command == "mix":
+        combined = mix_datasets(args.sources, args.dataset_id, overwrite=args.overwrite)
+        print(f"{args.dataset_id}: {combined.total_episodes} episodes, {combined.total_steps} transitions")
+    else:
+        metadata = load_dataset(args.dataset_id).storage.metadata
+        for key in ("observation_space", "action_space"):
+            metadata[key] = str(metadata[key])
+        print(json.dumps(metadata, indent=2, default=sorted))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,128 @@
+"""Load Minari datasets into SB3's ``ReplayBuffer`` by bulk array assignment, with clear errors for bad data."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+from minari import MinariDataset
+from stable_baselines3.common.buffers import ReplayBuffer
+
+from sb3_cql.data import ids
+
+#: Episodes read from disk at a time while filling a buffer: the only copy beside the buffer's arrays.
+LOAD_BATCH_EPISODES = 256
+
+
+class DatasetError(ValueError):
+    """A dataset that is missing, unreadable, or does not fit the environment."""
+
+
+def load_dataset(dataset_id: str) -> MinariDataset:
+    """Open the Minari dataset ``dataset_id``, with an error naming it (and how to make it) if it is missing
+    or unreadable."""
+    path = ids.dataset_path(dataset_id)
+    if not (path / "data" / "metadata.json").exists():
+        raise DatasetError(
+            f"dataset {dataset_id} not found at {path} (MINARI_DATASETS_PATH or ~/.minari/datasets); "
+            f"collect it with: python -m sb3_cql.data collect --dataset-id {dataset_id} ..."
+        )
+    try:
+        dataset = MinariDataset(path / "data")
+        list(dataset.storage.get_episode_metadata([0, dataset.total_episodes - 1]))  # opens the data file
+    except Exception as error:
+        raise DatasetError(f"dataset {dataset_id} at {path} is truncated or corrupt: {error}") from error
+    return dataset
+
+
+def check_spaces(dataset: MinariDataset, observation_space: spaces.Space, action_space: spaces.Space) -> None:
+    """Raise :class:`DatasetError` unless the dataset's spaces have the env's shapes and bounds."""
+    name = dataset.spec.dataset_id if dataset.spec else str(dataset.storage.data_path)
+    for what, data_space, env_space in (
+        ("observation", dataset.observation_space, observation_space),
+        ("action", dataset.action_space, action_space),
+    ):
+        if not isinstance(data_space, spaces.Box) or not isinstance(env_space, spaces.Box):
+            raise DatasetError(f"dataset {name}: only Box spaces are supported, got {data_space} and {env_space}")
+        if data_space.shape != env_space.shape:
+            raise DatasetError(f"dataset {name}: {what} shape {data_space.shape} does not match the env's {env_space.shape}")
+        if not (np.allclose(data_space.low, env_space.low) and np.allclose(data_space.high, env_space.high)):
+            raise DatasetError(
+                f"dataset {name}: {what} bounds do not match the env's (another action mode or task?): "
+                f"dataset {data_space}, env {env_space}"
+            )
+
+
+def fill_replay_buffer(
+    dataset: MinariDataset | str,
+    observation_space: spaces.Box,
+    action_space: spaces.Box,
+    replay_buffer: ReplayBuffer | None = None,
+    device: str = "auto",
+) -> ReplayBuffer:
+    """Append every transition of ``dataset`` to a ``ReplayBuffer`` and return the buffer.
+
+    ``observations`` are each episode's observations but the last, ``next_observations`` all but the first,
+    actions are scaled to [-1, 1] as SB3's policies scale them (``BasePolicy.scale_action``), ``dones`` are
+    the terminations and ``timeouts`` the truncations (SB3 bootstraps through a timeout). Episodes are read
+    ``LOAD_BATCH_EPISODES`` at a time and copied into the arrays by slices.
+
+    :param dataset: a Minari dataset or its id.
+    :param observation_space: the env's observation space (the dataset must match it).
+    :param action_space: the env's action space (the dataset must match it).
+    :param replay_buffer: a buffer to append to; if it cannot hold its content and the dataset, a larger one
+        holding both is returned instead. ``None`` makes one of exactly the dataset's size.
+    :param device: the device of a buffer made here.
+    """
+    if isinstance(dataset, str):
+        dataset = load_dataset(dataset)
+    check_spaces(dataset, observation_space, action_space)
+    name = dataset.spec.dataset_id if dataset.spec else str(dataset.storage.data_path)
+    n_transitions = dataset.total_steps
+    if n_transitions == 0:
+        raise DatasetError(f"dataset {name} holds no transitions")
+    if replay_buffer is None:
+        replay_buffer = ReplayBuffer(n_transitions, observation_space, action_space, device=device)
+    if replay_buffer.n_envs != 1 or replay_buffer.optimize_memory_usage:
+        raise ValueError("fill_replay_buffer needs a ReplayBuffer with n_envs=1 and optimize_memory_usage=False")
+    if replay_buffer.full:
+        raise ValueError("fill_replay_buffer cannot append to a full buffer")
+    start = replay_buffer.pos
+    if start + n_transitions > replay_buffer.buffer_size:
+        replay_buffer = _grown(replay_buffer, start + n_transitions)
+
+    low, high = action_space.low, action_space.high
+    position = start
+    indices = dataset.episode_indices
+    for first in range(0, len(indices), LOAD_BATCH_EPISODES):
+        for episode in dataset.iterate_episodes(indices[first : first + LOAD_BATCH_EPISODES]):
+            length = len(episode.rewards)
+            observations, actions = episode.observations, episode.actions
+            if not (np.isfinite(observations).all() and np.isfinite(actions).all() and np.isfinite(episode.rewards).all()):
+                raise DatasetError(f"dataset {name}: episode {episode.id} holds NaN or infinite values")
+            rows = slice(position, position + length)
+            replay_buffer.observations[rows, 0] = observations[:-1]
+            replay_buffer.next_observations[rows, 0] = observations[1:]
+            replay_buffer.actions[rows, 0] = 2.0 * ((actions - low) / (high - low)) - 1.0
+            replay_buffer.rewards[rows, 0] = episode.rewards
+            replay_buffer.dones[rows, 0] = episode.terminations
+            replay_buffer.timeouts[rows, 0] = episode.truncations
+            position += length
+    replay_buffer.pos = position % replay_buffer.buffer_size
+    replay_buffer.full = position == replay_buffer.buffer_size
+    return replay_buffer
+
+
+def _grown(replay_buffer: ReplayBuffer, buffer_size: int) -> ReplayBuffer:
+    """A copy of ``replay_buffer`` with room for ``buffer_size`` transitions."""
+    grown = ReplayBuffer(
+        buffer_size,
+        replay_buffer.observation_space,
+        replay_buffer.action_space,
+        device=replay_buffer.device,
+        handle_timeout_termination=replay_buffer.handle_timeout_termination,
+    )
+    size = replay_buffer.size()
+    for field in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        getattr(grown, field)[:size] = getattr(replay_buffer, field)[:size]
+    grown.pos = size
+    return grown

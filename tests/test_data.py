@@ -1,0 +1,228 @@
+"""Collection of Minari datasets and their loading into SB3's ReplayBuffer."""
+
+import gymnasium as gym
+import minari
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+
+import envs  # noqa: F401  (registers the tasks)
+from sb3_cql.data import (
+    CollectionSpec,
+    DatasetError,
+    collect_dataset,
+    dataset_path,
+    fill_replay_buffer,
+    load_dataset,
+    mix_datasets,
+)
+from sb3_cql.data import collection as collection_module
+from sb3_cql.data.__main__ import main as data_cli
+
+
+@pytest.fixture(autouse=True)
+def minari_root(tmp_path, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "datasets"))
+    return tmp_path / "datasets"
+
+
+def episodes_of(dataset):
+    return list(dataset.iterate_episodes())
+
+
+def assert_same_data(first, second):
+    assert first.total_episodes == second.total_episodes
+    for a, b in zip(episodes_of(first), episodes_of(second), strict=True):
+        for field in ("observations", "actions", "rewards", "terminations", "truncations"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+def test_pid_collection_is_a_minari_dataset():
+    dataset = collect_dataset(CollectionSpec(n_episodes=3), progress_bar=False)
+    assert dataset.spec.dataset_id == "sb3cql/Panda-v0/pid-v0"
+    loaded = minari.load_dataset("sb3cql/Panda-v0/pid-v0")
+    assert loaded.total_episodes == 3
+    metadata = loaded.storage.metadata
+    assert metadata["success_rate"] == 1.0 and metadata["env_id"] == "Panda-v0"
+    assert "kp" in metadata["controller"]
+    for episode in loaded.iterate_episodes():
+        steps = len(episode.rewards)
+        assert episode.observations.shape == (steps + 1, 29) and episode.actions.shape == (steps, 9)
+        assert episode.rewards[-1] == 1.0 and episode.terminations[-1] and not episode.truncations.any()
+    env = loaded.recover_environment()
+    assert env.spec.id == "Panda-v0" and env.unwrapped.action_mode == "absolute"
+    assert env.observation_space == loaded.observation_space
+
+
+def test_collection_does_not_depend_on_the_number_of_workers():
+    spec = CollectionSpec(policy="noisy", n_episodes=3, seed=5)
+    one = collect_dataset(spec, "sb3cql/Panda-v0/one-v0", workers=1, progress_bar=False)
+    two = collect_dataset(spec, "sb3cql/Panda-v0/two-v0", workers=2, progress_bar=False)
+    assert_same_data(one, two)
+
+
+def test_noisy_policy_records_executed_and_clean_actions():
+    dataset = collect_dataset(CollectionSpec(policy="noisy", n_episodes=2, noise=0.03), progress_bar=False)
+    for episode in dataset.iterate_episodes():
+        clean = episode.infos["clean_action"]
+        assert clean.shape == (len(episode.rewards) + 1, 9)
+        noise = episode.actions - clean[:-1]
+        assert 0.02 < noise[:, :7].std() < 0.04  # Gaussian noise on the arm targets ...
+        np.testing.assert_array_equal(noise[:, 7:], 0.0)  # ... and none on the fingers
+
+
+def test_delta_mode_dataset_has_its_own_id_and_unit_actions():
+    spec = CollectionSpec(n_episodes=1, env_kwargs={"action_mode": "delta"})
+    dataset = collect_dataset(spec, progress_bar=False)
+    assert dataset.spec.dataset_id == "sb3cql/Panda-v0/pid-delta-v0"
+    assert np.abs(dataset[0].actions).max() <= 1.0
+    assert dataset.recover_environment().unwrapped.action_mode == "delta"
+
+
+def test_existing_dataset_is_not_overwritten_without_asking():
+    spec = CollectionSpec(policy="random", n_episodes=1)
+    collect_dataset(spec, progress_bar=False)
+    with pytest.raises(FileExistsError, match="overwrite"):
+        collect_dataset(spec, progress_bar=False)
+    replaced = collect_dataset(CollectionSpec(policy="random", n_episodes=2), overwrite=True, progress_bar=False)
+    assert replaced.total_episodes == 2
+
+
+def test_interrupted_collection_leaves_no_dataset_and_resumes(monkeypatch):
+    spec = CollectionSpec(policy="noisy", n_episodes=4)
+    run_episode = collection_module._run_episode
+    calls = []
+
+    def interrupted(index):
+        calls.append(index)
+        if index == 2:
+            raise KeyboardInterrupt
+        return run_episode(index)
+
+    monkeypatch.setattr(collection_module, "WRITE_EVERY", 1)
+    monkeypatch.setattr(collection_module, "_run_episode", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        collect_dataset(spec, progress_bar=False)
+    assert not dataset_path("sb3cql/Panda-v0/noisy-v0").exists()
+    with pytest.raises(DatasetError, match="not found"):
+        load_dataset("sb3cql/Panda-v0/noisy-v0")
+
+    monkeypatch.setattr(collection_module, "_run_episode", lambda index: calls.append(index) or run_episode(index))
+    calls.clear()
+    resumed = collect_dataset(spec, progress_bar=False)
+    assert calls == [2, 3]
+    assert_same_data(resumed, collect_dataset(spec, "sb3cql/Panda-v0/fresh-v0", progress_bar=False))
+
+
+def test_another_collection_does_not_resume_a_partial_one(monkeypatch):
+    run_episode = collection_module._run_episode
+
+    def interrupted(index):
+        if index == 1:
+            raise KeyboardInterrupt
+        return run_episode(index)
+
+    monkeypatch.setattr(collection_module, "WRITE_EVERY", 1)
+    monkeypatch.setattr(collection_module, "_run_episode", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        collect_dataset(CollectionSpec(policy="random", n_episodes=2, seed=1), progress_bar=False)
+    monkeypatch.setattr(collection_module, "_run_episode", run_episode)
+    dataset = collect_dataset(CollectionSpec(policy="random", n_episodes=1, seed=2), progress_bar=False)
+    assert dataset.total_episodes == 1
+    assert dataset.storage.metadata["collection"] == CollectionSpec(policy="random", n_episodes=1, seed=2).to_json()
+    np.testing.assert_array_equal(dataset[0].observations[0], gym.make("Panda-v0").reset(seed=2)[0])
+
+
+def test_mix_combines_datasets():
+    collect_dataset(CollectionSpec(n_episodes=2), progress_bar=False)
+    collect_dataset(CollectionSpec(policy="random", n_episodes=1), progress_bar=False)
+    mixed = mix_datasets(["sb3cql/Panda-v0/pid-v0", "sb3cql/Panda-v0/random-v0"], "sb3cql/Panda-v0/mixed-v0")
+    assert mixed.total_episodes == 3
+    assert mixed.storage.metadata["success_rate"] == pytest.approx(2 / 3)
+    with pytest.raises(FileExistsError):
+        mix_datasets(["sb3cql/Panda-v0/pid-v0"], "sb3cql/Panda-v0/mixed-v0")
+
+
+def test_fill_replay_buffer_matches_sb3_add():
+    dataset = collect_dataset(CollectionSpec(policy="noisy", n_episodes=2), progress_bar=False)
+    env = gym.make("Panda-v0")
+    buffer = fill_replay_buffer(dataset.spec.dataset_id, env.observation_space, env.action_space)
+    assert buffer.size() == dataset.total_steps and buffer.full
+
+    # The same data added one transition at a time, actions scaled by an SB3 policy.
+    policy = SAC("MlpPolicy", env, policy_kwargs={"net_arch": [8]}, buffer_size=1).policy
+    expected = ReplayBuffer(dataset.total_steps, env.observation_space, env.action_space)
+    for episode in dataset.iterate_episodes():
+        for t in range(len(episode.rewards)):
+            expected.add(
+                episode.observations[t],
+                episode.observations[t + 1],
+                policy.scale_action(episode.actions[t]),
+                np.array([episode.rewards[t]]),
+                np.array([episode.terminations[t]]),
+                [{"TimeLimit.truncated": bool(episode.truncations[t])}],
+            )
+    for field in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        np.testing.assert_allclose(getattr(buffer, field), getattr(expected, field), rtol=1e-6, atol=1e-6)
+    assert buffer.actions.min() >= -1.0 and buffer.actions.max() <= 1.0
+
+
+def test_fill_replay_buffer_grows_a_small_buffer():
+    dataset = collect_dataset(CollectionSpec(n_episodes=1), progress_bar=False)
+    env = gym.make("Panda-v0")
+    small = ReplayBuffer(10, env.observation_space, env.action_space)
+    for value in range(3):
+        observation = np.full(29, value, dtype=np.float32)
+        small.add(observation, observation, np.zeros(9), np.zeros(1), np.zeros(1), [{}])
+    grown = fill_replay_buffer(dataset, env.observation_space, env.action_space, replay_buffer=small)
+    assert grown.size() == 3 + dataset.total_steps
+    np.testing.assert_array_equal(grown.observations[:3, 0, 0], [0, 1, 2])
+    np.testing.assert_array_equal(grown.observations[3:, 0], dataset[0].observations[:-1])
+
+
+def test_dataset_that_does_not_fit_the_env_is_rejected():
+    dataset = collect_dataset(CollectionSpec(n_episodes=1), progress_bar=False)
+    pendulum = gym.make("Pendulum-v1")
+    with pytest.raises(DatasetError, match="sb3cql/Panda-v0/pid-v0.*shape"):
+        fill_replay_buffer(dataset, pendulum.observation_space, pendulum.action_space)
+    delta = gym.make("Panda-v0", action_mode="delta")
+    with pytest.raises(DatasetError, match="action bounds"):
+        fill_replay_buffer(dataset, delta.observation_space, delta.action_space)
+
+
+def test_missing_dataset_is_named_in_the_error():
+    with pytest.raises(DatasetError, match="sb3cql/Panda-v0/nothing-v0 not found"):
+        load_dataset("sb3cql/Panda-v0/nothing-v0")
+
+
+def test_truncated_dataset_file_is_reported():
+    dataset = collect_dataset(CollectionSpec(n_episodes=2), progress_bar=False)
+    data_file = dataset.storage.data_path / "main_data.hdf5"
+    data_file.write_bytes(data_file.read_bytes()[: data_file.stat().st_size // 2])
+    with pytest.raises(DatasetError, match="truncated or corrupt"):
+        load_dataset("sb3cql/Panda-v0/pid-v0")
+
+
+def test_nan_in_dataset_is_reported():
+    env = gym.make("Panda-v0")
+    observations = np.zeros((4, 29), dtype=np.float32)
+    observations[2, 5] = np.nan
+    episode = minari.data_collector.EpisodeBuffer(
+        observations=observations,
+        actions=np.zeros((3, 9), dtype=np.float32),
+        rewards=np.zeros(3),
+        terminations=np.zeros(3, dtype=bool),
+        truncations=np.array([False, False, True]),
+    )
+    minari.create_dataset_from_buffers("sb3cql/Panda-v0/nan-v0", [episode], env=env, algorithm_name="test", author="t",
+                                       author_email="t", code_permalink="t", description="t")  # fmt: skip
+    with pytest.raises(DatasetError, match="NaN"):
+        fill_replay_buffer("sb3cql/Panda-v0/nan-v0", env.observation_space, env.action_space)
+
+
+def test_command_line_collects_and_describes(capsys):
+    data_cli(["collect", "--policy", "random", "--episodes", "1", "--seed", "3"])
+    assert "sb3cql/Panda-v0/random-v0: 1 episodes, 700 transitions" in capsys.readouterr().out
+    data_cli(["info", "sb3cql/Panda-v0/random-v0"])
+    assert '"success_rate": 0.0' in capsys.readouterr().out
