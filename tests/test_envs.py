@@ -258,3 +258,17 @@ def test_random_episodes_have_no_nan_or_tunnelling(env_id, n_episodes, make_env)
             pressed_in.append(episode)
     print(f"{env_id}: object pressed more than {radius / 2} m into a surface in episodes {pressed_in}")
     assert len(pressed_in) <= n_episodes // 100
+
+
+def test_pd_example_saves_a_video(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "examples" / "pd_controller.py"
+    spec = importlib.util.spec_from_file_location("pd_controller_example", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    successes = example.evaluate_pd_controller("Panda-v0", n_episodes=1, seed=0, video_folder=str(tmp_path))
+    assert successes == [True]
+    videos = list(tmp_path.glob("*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 10_000
