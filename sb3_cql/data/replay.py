@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from gymnasium import spaces
 from minari import MinariDataset
-from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_cql.data import ids
+
+if TYPE_CHECKING:  # SB3 (and torch) load only when a buffer is filled: collection workers never need them.
+    from stable_baselines3.common.buffers import ReplayBuffer
 
 #: Episodes read from disk at a time while filling a buffer: the only copy beside the buffer's arrays.
 LOAD_BATCH_EPISODES = 256
@@ -73,6 +77,8 @@ def fill_replay_buffer(
         holding both is returned instead. ``None`` makes one of exactly the dataset's size.
     :param device: the device of a buffer made here.
     """
+    from stable_baselines3.common.buffers import ReplayBuffer
+
     if isinstance(dataset, str):
         dataset = load_dataset(dataset)
     check_spaces(dataset, observation_space, action_space)
@@ -114,7 +120,7 @@ def fill_replay_buffer(
 
 def _grown(replay_buffer: ReplayBuffer, buffer_size: int) -> ReplayBuffer:
     """A copy of ``replay_buffer`` with room for ``buffer_size`` transitions."""
-    grown = ReplayBuffer(
+    grown = type(replay_buffer)(
         buffer_size,
         replay_buffer.observation_space,
         replay_buffer.action_space,
