@@ -4,9 +4,9 @@
 
 For every task, three loops alternate for ``--rounds`` rounds and the median of each is reported:
 
-- raw: the env's own client driven directly, one ``setJointMotorControlArray`` with the action's
-  joint targets and one ``stepSimulation`` (same time step and substeps) per step, and the scene reset
-  where the env's time limit resets it (random actions never succeed);
+- raw: the env's own client driven directly, one ``setJointMotorControl2`` per joint with the action's
+  target (the env's forces and velocity limits) and one ``stepSimulation`` (same time step and substeps)
+  per step, and the scene reset where the env's time limit resets it (random actions never succeed);
 - env: ``env.step`` with the same actions (absolute mode: target clipping, NaN checks, observation,
   success check and the force/perturbation logic included);
 - pd: ``env.step`` driven by the PD controller, whose inverse kinematics is included in the time.
@@ -32,13 +32,16 @@ from envs.robot import JOINTS
 def time_raw(env: gym.Env, actions: np.ndarray, seed: int) -> float:
     unwrapped = env.unwrapped
     env.reset(seed=seed)
-    body, client = unwrapped.robot.body, unwrapped.sim.id
-    forces = unwrapped.robot.motor_forces.tolist()
+    robot, client = unwrapped.robot, unwrapped.sim.id
+    motors = list(zip(JOINTS, robot.motor_forces.tolist(), robot.max_velocities, strict=True))
     start = time.perf_counter()
     for step, action in enumerate(actions, start=1):
-        pybullet.setJointMotorControlArray(
-            body, JOINTS, pybullet.POSITION_CONTROL, targetPositions=action.tolist(), forces=forces, physicsClientId=client
-        )
+        # The same motor commands as the env's (PyBullet has no array call taking velocity limits).
+        for (joint, force, max_velocity), target in zip(motors, action.tolist(), strict=True):
+            pybullet.setJointMotorControl2(
+                robot.body, joint, pybullet.POSITION_CONTROL, targetPosition=target, force=force,
+                maxVelocity=max_velocity, physicsClientId=client,
+            )  # fmt: skip
         pybullet.stepSimulation(physicsClientId=client)
         if step % envs.MAX_EPISODE_STEPS == 0:  # where the env's time limit resets it: the same physics
             env.reset()

@@ -4,7 +4,7 @@
 
 Reports the wall time of ``fill_replay_buffer`` (goal <= 30 s for 3M transitions), the buffer's arrays, and the
 process's peak resident memory above what it held before loading: the goal is no more than the buffer's arrays
-plus one batch of ``LOAD_BATCH_EPISODES`` episodes (no second full copy of the data).
+plus one episode (no second full copy of the data).
 """
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ import argparse
 import resource
 import time
 
+from stable_baselines3.common.buffers import ReplayBuffer  # noqa: F401  (torch is loaded before measuring)
+
 import envs  # noqa: F401  (registers the tasks)
 from sb3_cql.data import fill_replay_buffer, load_dataset
-from sb3_cql.data.replay import LOAD_BATCH_EPISODES
 
 
 def resident_mib() -> float:
@@ -39,10 +40,10 @@ def main() -> None:
         getattr(buffer, name).nbytes
         for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
     )
-    batch = arrays / buffer.size() * LOAD_BATCH_EPISODES * dataset.total_steps / dataset.total_episodes
+    episode = arrays / dataset.total_episodes
     print(f"{args.dataset_id}: {dataset.total_episodes} episodes, {buffer.size()} transitions")
     print(f"load: {seconds:.1f} s ({buffer.size() / seconds:,.0f} transitions/s)")
-    print(f"buffer arrays: {arrays / 2**20:.0f} MiB; one batch of {LOAD_BATCH_EPISODES} episodes: ~{batch / 2**20:.0f} MiB")
+    print(f"buffer arrays: {arrays / 2**20:.0f} MiB; one episode: ~{episode / 2**10:.0f} KiB")
     print(f"peak resident memory above the start of loading: {peak - before:.0f} MiB")
 
 

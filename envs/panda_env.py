@@ -102,7 +102,7 @@ class PandaGraspEnv(gym.Env):
         observation[9:23] = ee_position + ee_orientation + object_position + object_orientation
         observation[23:26] = left_finger
         observation[26:29] = right_finger
-        observation[23:29] -= object_position * 2
+        observation[23:29] -= object_position * 2  # the tuple twice: subtracted from both fingers
         return observation.astype(np.float32)
 
     def render(self) -> np.ndarray | None:

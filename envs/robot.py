@@ -54,7 +54,13 @@ class Panda:
         # PyBullet ignores the URDF's joint velocity limits (and changeDynamics' maxJointVelocity caps every
         # joint of a body at once): they are passed to each motor. Without them random targets swing the arm
         # at tens of rad/s and a finger closing on an escaping object launches it out of the scene.
-        self._max_velocities = [info[11] for info in infos]
+        self.max_velocities = [info[11] for info in infos]
+        self._null_space = {
+            "lowerLimits": self.lower_limits.tolist(),
+            "upperLimits": self.upper_limits.tolist(),
+            "jointRanges": (self.upper_limits - self.lower_limits).tolist(),
+            "restPoses": list(HOME_JOINT_POSITIONS),
+        }
 
     @property
     def action_space(self) -> spaces.Box:
@@ -65,14 +71,17 @@ class Panda:
 
     def reset(self, joint_positions=HOME_JOINT_POSITIONS) -> None:
         """Teleport the joints to ``joint_positions`` at rest and hold them there."""
-        for joint, position in zip(JOINTS, joint_positions, strict=True):
-            self.sim.client.resetJointState(self.body, joint, position, 0.0)
+        self._teleport(joint_positions)
         self.set_joint_targets(np.asarray(joint_positions, dtype=np.float64))
+
+    def _teleport(self, joint_positions) -> None:
+        for joint, position in zip(JOINTS, joint_positions, strict=True):
+            pybullet.resetJointState(self.body, joint, position, 0.0, physicsClientId=self._client_id)
 
     def set_joint_targets(self, targets: np.ndarray) -> None:
         """Send 9 joint targets (within the limits) to the position controllers."""
         for joint, target, force, max_velocity in zip(
-            JOINTS, targets.tolist(), self._forces, self._max_velocities, strict=True
+            JOINTS, targets.tolist(), self._forces, self.max_velocities, strict=True
         ):
             pybullet.setJointMotorControl2(
                 self.body,
@@ -117,17 +126,13 @@ class Panda:
     ) -> np.ndarray:
         """Joint positions placing the end effector at ``position`` with ``orientation`` (xyzw), solved from
         ``joint_positions``. This teleports the robot: call it on a simulator of its own."""
-        for joint, value in zip(JOINTS, joint_positions, strict=True):
-            self.sim.client.resetJointState(self.body, joint, value)
+        self._teleport(joint_positions)
         solution = pybullet.calculateInverseKinematics(
             self.body,
             END_EFFECTOR_LINK,
             position.tolist(),
             orientation.tolist(),
-            lowerLimits=self.lower_limits.tolist(),
-            upperLimits=self.upper_limits.tolist(),
-            jointRanges=(self.upper_limits - self.lower_limits).tolist(),
-            restPoses=list(HOME_JOINT_POSITIONS),
+            **self._null_space,
             maxNumIterations=iterations,
             physicsClientId=self._client_id,
         )

@@ -226,3 +226,32 @@ def test_command_line_collects_and_describes(capsys):
     assert "sb3cql/Panda-v0/random-v0: 1 episodes, 700 transitions" in capsys.readouterr().out
     data_cli(["info", "sb3cql/Panda-v0/random-v0"])
     assert '"success_rate": 0.0' in capsys.readouterr().out
+
+
+def test_killed_worker_stops_the_collection_with_a_clear_error(minari_root):
+    import multiprocessing
+    import os
+    import signal
+    import threading
+    import time
+
+    spec = CollectionSpec(policy="noisy", n_episodes=60)
+    outcome = {}
+
+    def collect():
+        try:
+            collect_dataset(spec, workers=2, progress_bar=False)
+        except Exception as error:  # noqa: BLE001  (the error is the test's subject)
+            outcome["error"] = error
+
+    thread = threading.Thread(target=collect)
+    thread.start()
+    deadline = time.monotonic() + 60
+    while len(multiprocessing.active_children()) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(3.0)  # let the workers start episodes
+    os.kill(multiprocessing.active_children()[0].pid, signal.SIGKILL)
+    thread.join(timeout=60)
+    assert not thread.is_alive(), "the collection hung after a worker was killed"
+    assert isinstance(outcome.get("error"), RuntimeError) and "worker died" in str(outcome["error"])
+    assert not dataset_path("sb3cql/Panda-v0/noisy-v0").exists()

@@ -14,6 +14,8 @@ import os
 import shutil
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -165,10 +167,18 @@ def _episodes(spec: CollectionSpec, start: int, workers: int) -> Iterator[Episod
             _worker["env"].close()
             _worker.clear()
         return
-    # spawn, not fork: a parent holding torch threads or a PyBullet client must not be copied.
-    context = multiprocessing.get_context("spawn")
-    with context.Pool(workers, initializer=_init_worker, initargs=(spec,)) as pool:
-        yield from pool.imap(_run_episode, indices, chunksize=4)
+    # spawn, not fork: a parent holding torch threads or a PyBullet client must not be copied. An executor, not
+    # a Pool: a killed worker raises BrokenProcessPool instead of hanging the collection.
+    executor = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), _init_worker, (spec,))
+    try:
+        yield from executor.map(_run_episode, indices, chunksize=4)
+    except BrokenProcessPool as error:
+        raise RuntimeError(
+            f"a collection worker died (killed, or out of memory); the episodes written so far are kept and "
+            f"running the same collection again resumes it: {error}"
+        ) from error
+    finally:
+        executor.shutdown(wait=False, cancel_futures=True)
 
 
 def _open_partial(partial: Path, spec: CollectionSpec, env: gym.Env) -> tuple[MinariStorage, list[bool]]:
