@@ -22,7 +22,7 @@ class GraspConfig:
     :param sim_timestep: PyBullet's internal time step (s). 1/240 s is PyBullet's default and keeps
         the 60 N finger grip on a 0.1 friction cylinder stable.
     :param substeps: physics steps per environment step. 4 substeps of 1/240 s give a 60 Hz control
-        rate: the PD controller lifts the object in about 160 steps, well inside the 700-step limit,
+        rate: the PD controller lifts the object in about 180 steps, well inside the 700-step limit,
         and each env step costs four physics steps, not more.
     :param gravity: gravity along world z (m/s^2).
     :param arm_motor_force: maximum torque of each of the 7 arm joint motors (N m).
