@@ -1,3 +1,16 @@
 """sb3-cql: Conservative Q-Learning for Stable-Baselines3 and the Panda grasping tasks it learns."""
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    # CQL loads torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
+    # collection workers start without them.
+    if name == "CQL":
+        from sb3_cql.cql import CQL
+
+        return CQL
+    raise AttributeError(f"module 'sb3_cql' has no attribute {name!r}")
+
+
+__all__ = ["CQL", "__version__"]

@@ -1,0 +1,395 @@
+"""Conservative Q-Learning (CQL(H)) for offline RL: SAC plus a conservative term in the critic loss."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from minari import MinariDataset
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import FloatSchedule, polyak_update, update_learning_rate
+from torch.nn import functional as F
+
+from sb3_cql.cql.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
+from sb3_cql.data import fill_replay_buffer
+
+SelfCQL = TypeVar("SelfCQL", bound="CQL")
+
+#: Bound of the learned Lagrange multiplier, as in the reference implementation.
+MAX_ALPHA_PRIME = 1e6
+
+
+class CQL(SAC):
+    """Conservative Q-Learning, CQL(H) (Kumar et al. 2020, https://arxiv.org/abs/2006.04779), trained offline.
+
+    :meth:`train` is SAC's with one more critic loss term: for each critic,
+
+    ``cql_alpha * (T * logsumexp_a(Q(s, a) / T) - Q(s, a_data))``
+
+    where the log-sum-exp runs over ``cql_n_actions`` uniform actions, ``cql_n_actions`` current-policy actions at
+    ``s`` and ``cql_n_actions`` policy actions at ``s'`` (all scored at ``s``), importance-weighted by their
+    densities, and ``T`` is ``cql_temperature``. With ``cql_target_action_gap`` set, the term becomes
+    ``alpha' * (term - gap)`` with the multiplier ``alpha'`` learned by dual gradient ascent.
+
+    Training is offline: the replay buffer is filled from ``dataset`` and :meth:`learn` makes one gradient step per
+    timestep, stepping the env never (it only gives the spaces, and callbacks such as ``EvalCallback`` use their
+    own envs). Observations are z-scored with the dataset's statistics (``normalize_observations``) inside the
+    policy, so ``predict`` applies the same normalisation after ``save``/``load``.
+
+    Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
+    learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere.
+
+    :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
+    :param env: the environment (for its spaces, and the default evaluation env).
+    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
+        ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`).
+    :param learning_rate: learning rate of the critics, the entropy coefficient and the Lagrange multiplier.
+    :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
+    :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
+    :param batch_size: minibatch size of each gradient step.
+    :param tau: Polyak coefficient of the target critics.
+    :param gamma: discount factor.
+    :param ent_coef: SAC's entropy coefficient (``"auto"`` to learn it).
+    :param target_entropy: SAC's target entropy when learning ``ent_coef``.
+    :param target_update_interval: gradient steps between target updates.
+    :param cql_alpha: weight of the conservative term.
+    :param cql_n_actions: actions sampled per state for each of the three log-sum-exp groups.
+    :param cql_temperature: temperature ``T`` of the log-sum-exp.
+    :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
+    :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
+    :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
+    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning (log-likelihood of the data
+        actions) instead of the Q-value.
+    :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param tensorboard_log: TensorBoard log folder.
+    :param policy_kwargs: keywords of the policy (``net_arch``, ...).
+    :param verbose: 0 silent, 1 training logs, 2 debug.
+    :param seed: seed of the random generators.
+    :param device: torch device.
+    :param _init_setup_model: build the networks now.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "CnnPolicy": CnnPolicy,
+        "MultiInputPolicy": MultiInputPolicy,
+    }
+
+    def __init__(
+        self,
+        policy: str | type[BasePolicy],
+        env: GymEnv | str,
+        dataset: MinariDataset | str | ReplayBuffer | None = None,
+        learning_rate: float | Schedule = 3e-4,
+        actor_learning_rate: float | Schedule | None = 3e-5,
+        buffer_size: int = 2_000_000,
+        batch_size: int = 352,
+        tau: float = 0.005,
+        gamma: float = 0.99,
+        ent_coef: str | float = "auto",
+        target_entropy: str | float = "auto",
+        target_update_interval: int = 1,
+        cql_alpha: float = 5.0,
+        cql_n_actions: int = 10,
+        cql_temperature: float = 1.0,
+        cql_target_action_gap: float | None = None,
+        cql_deterministic_backup: bool = True,
+        cql_max_backup: bool = False,
+        bc_steps: int = 0,
+        normalize_observations: bool = True,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0:
+            raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0 and cql_alpha >= 0")
+        self.dataset = dataset
+        self.actor_learning_rate = actor_learning_rate
+        self.cql_alpha = cql_alpha
+        self.cql_n_actions = cql_n_actions
+        self.cql_temperature = cql_temperature
+        self.cql_target_action_gap = cql_target_action_gap
+        self.cql_deterministic_backup = cql_deterministic_backup
+        self.cql_max_backup = cql_max_backup
+        self.bc_steps = bc_steps
+        self.normalize_observations = normalize_observations
+        self._fill_on_setup = True  # CQL.load turns it off: a loaded model does not reload its data
+        self.log_alpha_prime: th.Tensor | None = None
+        self.alpha_prime_optimizer: th.optim.Adam | None = None
+        policy_kwargs = dict(policy_kwargs or {})
+        if normalize_observations and policy in ("MlpPolicy", MlpPolicy):
+            policy_kwargs.setdefault("features_extractor_class", NormalizedFlatten)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            # The dataset's own buffer replaces SB3's: allocate nothing here.
+            buffer_size=1 if dataset is not None else buffer_size,
+            learning_starts=0,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            ent_coef=ent_coef,
+            target_entropy=target_entropy,
+            target_update_interval=target_update_interval,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
+        self.actor_lr_schedule = FloatSchedule(rate)
+        if self.cql_target_action_gap is not None:
+            self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
+            self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
+        if self.dataset is not None and self._fill_on_setup:
+            self._fill_from_dataset(self.dataset)
+            self.dataset = self.dataset if isinstance(self.dataset, str) else None  # never pickle data into a model
+
+    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        if isinstance(dataset, ReplayBuffer):
+            if dataset.obs_shape != self.observation_space.shape or dataset.action_dim != self.action_space.shape[0]:
+                raise ValueError(
+                    f"the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) do not "
+                    f"match the env's {self.observation_space.shape} and {self.action_space.shape}"
+                )
+            self.replay_buffer = dataset
+        else:
+            self.replay_buffer = fill_replay_buffer(dataset, self.observation_space, self.action_space, device=self.device)
+        size = self.replay_buffer.size()
+        if size == 0:
+            raise ValueError("the dataset holds no transitions")
+        if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
+            observations = self.replay_buffer.observations[:size].reshape(size, -1)
+            mean, std = observations.mean(axis=0), observations.std(axis=0)
+            for module in (self.actor, self.critic, self.critic_target):
+                module.features_extractor.set_statistics(mean, std)
+
+    def learn(
+        self: SelfCQL,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1000,
+        tb_log_name: str = "CQL",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfCQL:
+        """Make ``total_timesteps`` gradient steps on the replay buffer, calling the callbacks after each one.
+
+        :param total_timesteps: gradient steps.
+        :param callback: SB3 callback(s), called once per gradient step.
+        :param log_interval: gradient steps between two dumps of the logs.
+        :param tb_log_name: name of the TensorBoard run.
+        :param reset_num_timesteps: count from 0 (else continue the count of a previous ``learn``).
+        :param progress_bar: show a progress bar of the gradient steps.
+        """
+        if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
+            size = 0 if self.replay_buffer is None else self.replay_buffer.size()
+            raise ValueError(f"offline training needs batch_size={self.batch_size} transitions or more, the buffer has {size}")
+        # CPU torch slows down by 40x on denormal floats, which near-converged networks produce.
+        th.set_flush_denormal(True)
+        total_timesteps, callback = self._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        callback.on_training_start(locals(), globals())
+        while self.num_timesteps < total_timesteps:
+            self.train(gradient_steps=1, batch_size=self.batch_size)
+            self.num_timesteps += 1
+            self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
+            callback.update_locals(locals())
+            if not callback.on_step():
+                break
+            if log_interval > 0 and self.num_timesteps % log_interval == 0:
+                self._dump_offline_logs()
+        callback.on_training_end()
+        return self
+
+    def _dump_offline_logs(self) -> None:
+        elapsed = max(time.time_ns() - self.start_time, 1) / 1e9
+        steps = self.num_timesteps - self._num_timesteps_at_start
+        self.logger.record("time/gradient_steps_per_s", int(steps / elapsed))
+        self.logger.record("time/time_elapsed", int(elapsed), exclude="tensorboard")
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        self.logger.dump(step=self.num_timesteps)
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """SAC's update with the conservative term added to the critic loss (and, with ``cql_target_action_gap``,
+        a dual step on the Lagrange multiplier)."""
+        self.policy.set_training_mode(True)
+        optimizers = [self.critic.optimizer]
+        optimizers += [opt for opt in (self.ent_coef_optimizer, self.alpha_prime_optimizer) if opt is not None]
+        self._update_learning_rate(optimizers)
+        update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
+        logs: dict[str, list[float]] = {}
+
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+
+            ent_coef_loss = None
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                ent_coef = th.exp(self.log_ent_coef.detach())
+                ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                self.ent_coef_optimizer.zero_grad()
+                ent_coef_loss.backward()
+                self.ent_coef_optimizer.step()
+                _append(logs, "train/ent_coef_loss", ent_coef_loss.item())
+            else:
+                ent_coef = self.ent_coef_tensor
+            _append(logs, "train/ent_coef", ent_coef.item())
+
+            with th.no_grad():
+                target_q_values = data.rewards + (1 - data.dones) * self.gamma * self._next_q_values(data, ent_coef)
+
+            current_q_values, conservative, diagnostics = self._q_values_and_conservative_terms(data)
+            td_loss = 0.5 * sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+            conservative_loss = self._conservative_loss(conservative, logs)
+            critic_loss = td_loss + conservative_loss
+            critic_loss_value = critic_loss.item()
+            if not math.isfinite(critic_loss_value):
+                raise FloatingPointError(
+                    f"CQL's critic loss is {critic_loss_value} at gradient step {self.num_timesteps + 1}: training "
+                    f"diverged (try a lower learning_rate, reward scaling or cql_target_action_gap)"
+                )
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+
+            if self.num_timesteps < self.bc_steps:
+                # Behaviour-cloning warm start: the data actions' log-likelihood replaces the Q-value.
+                mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
+                distribution = self.actor.action_dist.proba_distribution(mean_actions, log_std, **kwargs)
+                data_actions = data.actions.clamp(-1 + 1e-6, 1 - 1e-6)
+                actor_loss = (ent_coef * log_prob - distribution.log_prob(data_actions).reshape(-1, 1)).mean()
+            else:
+                q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
+                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
+                actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self.actor.optimizer.step()
+
+            self._n_updates += 1
+            if self._n_updates % self.target_update_interval == 0:
+                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+
+            _append(logs, "train/critic_loss", critic_loss_value)
+            _append(logs, "train/actor_loss", actor_loss.item())
+            _append(logs, "train/cql_td_loss", td_loss.item())
+            _append(logs, "train/cql_loss", conservative_loss.item())
+            for key, value in diagnostics.items():
+                _append(logs, key, value)
+
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, values in logs.items():
+            self.logger.record(key, float(np.mean(values)))
+
+    def _next_q_values(self, data, ent_coef: th.Tensor) -> th.Tensor:
+        """The soft (or, with ``cql_deterministic_backup``, plain) value of the next states under the target critics."""
+        next_observations = data.next_observations
+        n_samples = self.cql_n_actions if self.cql_max_backup else 1
+        if n_samples > 1:
+            next_observations = next_observations.repeat_interleave(n_samples, dim=0)
+        next_actions, next_log_prob = self.actor.action_log_prob(next_observations)
+        next_q_values = th.cat(self.critic_target(next_observations, next_actions), dim=1)
+        next_q_values, _ = th.min(next_q_values, dim=1, keepdim=True)
+        if not self.cql_deterministic_backup:
+            next_q_values = next_q_values - ent_coef * next_log_prob.reshape(-1, 1)
+        if n_samples > 1:
+            next_q_values = next_q_values.reshape(-1, n_samples).max(dim=1, keepdim=True).values
+        return next_q_values
+
+    def _q_values_and_conservative_terms(self, data) -> tuple[list[th.Tensor], list[th.Tensor], dict[str, float]]:
+        """Q on the data actions and each critic's ``logsumexp - Q(data)`` gap, from one critic forward pass over the
+        data actions and the ``3 * cql_n_actions`` sampled actions of every state."""
+        batch_size, n = data.observations.shape[0], self.cql_n_actions
+        action_dim = self.action_space.shape[0]
+        repeated_observations = data.observations.repeat_interleave(n, dim=0)
+        repeated_next_observations = data.next_observations.repeat_interleave(n, dim=0)
+        with th.no_grad():
+            random_actions = th.empty(batch_size * n, action_dim, device=self.device).uniform_(-1.0, 1.0)
+            policy_actions, policy_log_prob = self.actor.action_log_prob(repeated_observations)
+            next_policy_actions, next_policy_log_prob = self.actor.action_log_prob(repeated_next_observations)
+        observations = th.cat([data.observations, repeated_observations.repeat(3, 1)])
+        actions = th.cat([data.actions, random_actions, policy_actions, next_policy_actions])
+        # Importance weights: uniform density (1/2)^|A| on [-1, 1]^|A|, the policy's own density otherwise.
+        log_densities = th.cat(
+            [
+                th.full((batch_size, n), action_dim * math.log(0.5), device=self.device),
+                policy_log_prob.reshape(batch_size, n),
+                next_policy_log_prob.reshape(batch_size, n),
+            ],
+            dim=1,
+        )
+        current_q_values, gaps, diagnostics = [], [], {}
+        for index, q_values in enumerate(self.critic(observations, actions), start=1):
+            q_data = q_values[:batch_size]
+            sampled = q_values[batch_size:].reshape(3, batch_size, n)
+            importance_weighted = th.cat(list(sampled), dim=1) - log_densities
+            logsumexp = th.logsumexp(importance_weighted / self.cql_temperature, dim=1) * self.cql_temperature
+            current_q_values.append(q_data)
+            gaps.append(logsumexp.mean() - q_data.mean())
+            if index == 1:
+                diagnostics = {
+                    "train/cql_q_data": q_data.mean().item(),
+                    "train/cql_q_random": sampled[0].mean().item(),
+                    "train/cql_q_policy": sampled[1].mean().item(),
+                    "train/cql_q_next_policy": sampled[2].mean().item(),
+                    "train/cql_gap": gaps[0].item(),
+                }
+        return current_q_values, gaps, diagnostics
+
+    def _conservative_loss(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
+        """``cql_alpha`` times the gaps, or their Lagrangian with a dual step on the multiplier."""
+        terms = [self.cql_alpha * gap for gap in gaps]
+        if self.log_alpha_prime is None or self.alpha_prime_optimizer is None:
+            return sum(terms)
+        alpha_prime = self.log_alpha_prime.exp().clamp(0.0, MAX_ALPHA_PRIME)
+        # Dual ascent: the multiplier grows while the gap exceeds its target.
+        alpha_prime_loss = -0.5 * sum(alpha_prime * (term.detach() - self.cql_target_action_gap) for term in terms)
+        self.alpha_prime_optimizer.zero_grad()
+        alpha_prime_loss.backward()
+        self.alpha_prime_optimizer.step()
+        _append(logs, "train/cql_alpha_prime", alpha_prime.item())
+        _append(logs, "train/cql_alpha_prime_loss", alpha_prime_loss.item())
+        return sum(alpha_prime.detach() * (term - self.cql_target_action_gap) for term in terms)
+
+    @classmethod
+    def load(cls, path, env=None, device="auto", custom_objects=None, print_system_info=False, force_reset=True, **kwargs):
+        """SB3's ``load``, without the training data: the replay buffer holds one transition (unless ``buffer_size``
+        is given), so a loaded model predicts without allocating the training buffer. ``model.dataset`` still names
+        a dataset given by id; ``model.replay_buffer = fill_replay_buffer(...)`` (or ``load_replay_buffer``) to
+        train on."""
+        kwargs.setdefault("buffer_size", 1)
+        kwargs["_fill_on_setup"] = False
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "actor_lr_schedule", "_fill_on_setup"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        if self.alpha_prime_optimizer is not None:
+            state_dicts.append("alpha_prime_optimizer")
+            variables.append("log_alpha_prime")
+        return state_dicts, variables
+
+
+def _append(logs: dict[str, list[float]], key: str, value: float) -> None:
+    logs.setdefault(key, []).append(value)

@@ -1,0 +1,159 @@
+"""CQL: offline training through SB3's API, the conservative property, save/load, bad input."""
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.logger import Logger, configure
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+from sb3_cql import CQL
+from sb3_cql.cql import NormalizedFlatten
+from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset
+
+TINY = {"net_arch": [32, 32]}
+
+
+def random_pendulum_buffer(n_transitions: int = 1000, seed: int = 0) -> ReplayBuffer:
+    env = gym.make("Pendulum-v1")
+    env.action_space.seed(seed)
+    buffer = ReplayBuffer(n_transitions, env.observation_space, env.action_space)
+    observation, _ = env.reset(seed=seed)
+    for _ in range(n_transitions):
+        action = env.action_space.sample()
+        next_observation, reward, terminated, truncated, _ = env.step(action)
+        buffer.add(observation, next_observation, action / 2.0, np.array([reward]), np.array([terminated]),
+                   [{"TimeLimit.truncated": truncated}])  # fmt: skip
+        observation = next_observation if not (terminated or truncated) else env.reset()[0]
+    return buffer
+
+
+def test_cql_is_an_sb3_off_policy_algorithm_trained_offline(tmp_path):
+    buffer = random_pendulum_buffer()
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=32, policy_kwargs=TINY, seed=0)
+    assert isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is buffer
+    model.set_logger(configure(str(tmp_path / "logs"), ["csv"]))
+    eval_callback = EvalCallback(gym.make("Pendulum-v1"), eval_freq=100, n_eval_episodes=1, log_path=str(tmp_path / "eval"))
+    checkpoints = CheckpointCallback(save_freq=100, save_path=str(tmp_path / "checkpoints"))
+    before = buffer.observations.copy()
+    model.learn(200, callback=[eval_callback, checkpoints], log_interval=50, progress_bar=True)
+
+    assert model.num_timesteps == 200 and model._n_updates == 200
+    np.testing.assert_array_equal(buffer.observations, before)  # offline: no transition was added
+    assert np.load(tmp_path / "eval" / "evaluations.npz")["timesteps"].tolist() == [100, 200]
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["rl_model_100_steps.zip", "rl_model_200_steps.zip"]
+    logged = pd.read_csv(tmp_path / "logs" / "progress.csv")
+    for key in ("train/critic_loss", "train/actor_loss", "train/ent_coef", "train/cql_loss", "train/cql_q_random",
+                "train/cql_q_policy", "train/cql_q_data", "eval/mean_reward", "time/gradient_steps_per_s"):  # fmt: skip
+        assert key in logged.columns, key
+    assert sorted(set(logged["time/total_timesteps"].dropna())) == [50, 100, 150, 200]  # EvalCallback dumps too
+
+
+@pytest.mark.parametrize("options", [{}, {"cql_target_action_gap": 5.0}, {"cql_max_backup": True, "bc_steps": 20},
+                                     {"cql_deterministic_backup": False, "ent_coef": 0.1}])  # fmt: skip
+def test_save_and_load_round_trip(tmp_path, options):
+    env = gym.make("Pendulum-v1")
+    model = CQL("MlpPolicy", env, dataset=random_pendulum_buffer(), batch_size=32, policy_kwargs=TINY, seed=1, **options)
+    model.learn(50)
+    model.save(tmp_path / "cql")
+    loaded = CQL.load(tmp_path / "cql", env=env)
+    assert loaded.replay_buffer.buffer_size == 1  # predicting needs no training buffer
+    observations = np.stack([env.observation_space.sample() for _ in range(16)])
+    np.testing.assert_array_equal(loaded.predict(observations, deterministic=True)[0],
+                                  model.predict(observations, deterministic=True)[0])  # fmt: skip
+    for name, tensor in model.policy.state_dict().items():
+        th.testing.assert_close(loaded.policy.state_dict()[name], tensor)
+    if "cql_target_action_gap" in options:
+        assert model.log_alpha_prime.item() != 0.0
+        th.testing.assert_close(loaded.log_alpha_prime, model.log_alpha_prime)
+        assert loaded.alpha_prime_optimizer.state_dict()["state"]
+    loaded.replay_buffer = model.replay_buffer
+    loaded.learn(10, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 60
+
+
+def test_observations_are_normalised_with_the_dataset_statistics(tmp_path, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    dataset = collect_dataset(CollectionSpec(n_episodes=2), progress_bar=False)
+    model = CQL("MlpPolicy", "Panda-v0", dataset="sb3cql/Panda-v0/pid-v0", batch_size=32, policy_kwargs=TINY)
+    assert model.replay_buffer.size() == dataset.total_steps
+    observations = model.replay_buffer.observations[: model.replay_buffer.size(), 0]
+    for module in (model.actor, model.critic, model.critic_target):
+        extractor = module.features_extractor
+        assert isinstance(extractor, NormalizedFlatten)
+        np.testing.assert_allclose(extractor.mean.numpy(), observations.mean(axis=0), rtol=1e-5, atol=1e-6)
+    normalised = model.actor.features_extractor(th.as_tensor(observations)).numpy()
+    varying = observations.std(axis=0) > 1e-3  # a constant feature keeps a std floor of 1e-6
+    np.testing.assert_allclose(normalised.mean(axis=0)[varying], 0.0, atol=1e-3)
+    np.testing.assert_allclose(normalised.std(axis=0)[varying], 1.0, atol=1e-3)
+
+
+def test_dataset_that_does_not_fit_the_env_is_rejected(tmp_path, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    collect_dataset(CollectionSpec(n_episodes=1), progress_bar=False)
+    with pytest.raises(DatasetError, match="sb3cql/Panda-v0/pid-v0"):
+        CQL("MlpPolicy", "Pendulum-v1", dataset="sb3cql/Panda-v0/pid-v0")
+    with pytest.raises(ValueError, match="do not match"):
+        CQL("MlpPolicy", "Panda-v0", dataset=random_pendulum_buffer(100))
+
+
+def test_too_little_data_is_rejected():
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(20), batch_size=32, policy_kwargs=TINY)
+    with pytest.raises(ValueError, match="batch_size=32"):
+        model.learn(10)
+
+
+def test_divergence_stops_with_the_step():
+    buffer = random_pendulum_buffer(100)
+    buffer.rewards[50] = np.inf
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=100, policy_kwargs=TINY)
+    with pytest.raises(FloatingPointError, match="gradient step 1"):
+        model.learn(5)
+
+
+class OneStepBandit(gym.Env):
+    """One state, one step: reward 1 - a^2 for a 1-D action in [-1, 1]."""
+
+    observation_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+    action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.zeros(1, dtype=np.float32), {}
+
+    def step(self, action):
+        return np.zeros(1, dtype=np.float32), float(1.0 - action[0] ** 2), True, False, {}
+
+
+def test_cql_is_conservative_where_sac_overestimates():
+    """The data cover only a in [-1, -0.5]; on unseen actions a in [0.5, 1], CQL's Q stays below its Q on the data,
+    while SAC trained on the same data extrapolates higher."""
+    env = OneStepBandit()
+    rng = np.random.default_rng(0)
+    buffer = ReplayBuffer(2000, env.observation_space, env.action_space)
+    for action in rng.uniform(-1.0, -0.5, size=2000):
+        buffer.add(np.zeros(1), np.zeros(1), np.array([action]), np.array([1 - action**2]), np.array([True]), [{}])
+    data_actions = th.linspace(-1.0, -0.5, 20).reshape(-1, 1)
+    unseen_actions = th.linspace(0.5, 1.0, 20).reshape(-1, 1)
+    observations = th.zeros(20, 1)
+
+    def mean_q(model, actions):
+        with th.no_grad():
+            return th.cat(model.critic(observations, actions), dim=1).min(dim=1).values.mean().item()
+
+    cql = CQL("MlpPolicy", env, dataset=buffer, batch_size=64, learning_rate=1e-3, actor_learning_rate=1e-3,
+              policy_kwargs=TINY, seed=0)  # fmt: skip
+    cql.learn(1000)
+    sac = SAC("MlpPolicy", env, batch_size=64, learning_rate=1e-3, policy_kwargs=TINY, seed=0, learning_starts=0)
+    sac.replay_buffer = buffer
+    sac.set_logger(Logger(None, []))
+    sac.train(gradient_steps=1000, batch_size=64)
+    assert mean_q(cql, unseen_actions) < mean_q(cql, data_actions)
+    assert (
+        mean_q(sac, unseen_actions) - mean_q(sac, data_actions) > mean_q(cql, unseen_actions) - mean_q(cql, data_actions) + 1.0
+    )
