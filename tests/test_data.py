@@ -89,19 +89,26 @@ def test_existing_dataset_is_not_overwritten_without_asking():
     assert replaced.total_episodes == 2
 
 
-def test_interrupted_collection_leaves_no_dataset_and_resumes(monkeypatch):
-    spec = CollectionSpec(policy="noisy", n_episodes=4)
+def interrupt_collection_at(monkeypatch, interrupted_index: int, calls: list[int]):
+    """Make episode ``interrupted_index`` raise KeyboardInterrupt, write every episode, record the episodes run in
+    ``calls``; return the real episode function."""
     run_episode = collection_module._run_episode
-    calls = []
 
     def interrupted(index):
         calls.append(index)
-        if index == 2:
+        if index == interrupted_index:
             raise KeyboardInterrupt
         return run_episode(index)
 
     monkeypatch.setattr(collection_module, "WRITE_EVERY", 1)
     monkeypatch.setattr(collection_module, "_run_episode", interrupted)
+    return run_episode
+
+
+def test_interrupted_collection_leaves_no_dataset_and_resumes(monkeypatch):
+    spec = CollectionSpec(policy="noisy", n_episodes=4)
+    calls = []
+    run_episode = interrupt_collection_at(monkeypatch, 2, calls)
     with pytest.raises(KeyboardInterrupt):
         collect_dataset(spec, progress_bar=False)
     assert not dataset_path("sb3cql/Panda-v0/noisy-v0").exists()
@@ -116,15 +123,7 @@ def test_interrupted_collection_leaves_no_dataset_and_resumes(monkeypatch):
 
 
 def test_another_collection_does_not_resume_a_partial_one(monkeypatch):
-    run_episode = collection_module._run_episode
-
-    def interrupted(index):
-        if index == 1:
-            raise KeyboardInterrupt
-        return run_episode(index)
-
-    monkeypatch.setattr(collection_module, "WRITE_EVERY", 1)
-    monkeypatch.setattr(collection_module, "_run_episode", interrupted)
+    run_episode = interrupt_collection_at(monkeypatch, 1, [])
     with pytest.raises(KeyboardInterrupt):
         collect_dataset(CollectionSpec(policy="random", n_episodes=2, seed=1), progress_bar=False)
     monkeypatch.setattr(collection_module, "_run_episode", run_episode)
