@@ -157,3 +157,37 @@ def test_cql_is_conservative_where_sac_overestimates():
     assert (
         mean_q(sac, unseen_actions) - mean_q(sac, data_actions) > mean_q(cql, unseen_actions) - mean_q(cql, data_actions) + 1.0
     )
+
+
+@pytest.mark.slow
+def test_cql_learns_pendulum_from_a_good_policys_data():
+    """SAC learns Pendulum-v1 online; 20,000 transitions of its policy (with Gaussian noise for coverage) are CQL's
+    only data; CQL trained offline must approach the data's return."""
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    env = gym.make("Pendulum-v1")
+    expert = SAC("MlpPolicy", env, policy_kwargs={"net_arch": [64, 64]}, learning_starts=1000, seed=0)
+    expert.learn(12_000)
+    buffer = ReplayBuffer(20_000, env.observation_space, env.action_space)
+    rng = np.random.default_rng(0)
+    observation, _ = env.reset(seed=100)
+    returns, episode_return = [], 0.0
+    for _ in range(20_000):
+        action = np.clip(expert.predict(observation, deterministic=True)[0] + 0.3 * rng.standard_normal(1), -2.0, 2.0)
+        next_observation, reward, terminated, truncated, _ = env.step(action)
+        buffer.add(observation, next_observation, action / 2.0, np.array([reward]), np.array([terminated]),
+                   [{"TimeLimit.truncated": truncated}])  # fmt: skip
+        episode_return += reward
+        observation = next_observation
+        if terminated or truncated:
+            returns.append(episode_return)
+            episode_return, observation = 0.0, env.reset()[0]
+    data_return = float(np.mean(returns))
+
+    model = CQL("MlpPolicy", env, dataset=buffer, batch_size=256, learning_rate=3e-4, actor_learning_rate=1e-4,
+                policy_kwargs={"net_arch": [64, 64]}, seed=0)  # fmt: skip
+    model.learn(10_000)
+    cql_return, _ = evaluate_policy(model, gym.make("Pendulum-v1"), n_eval_episodes=10)
+    print(f"Pendulum-v1: data return {data_return:.0f}, CQL return {cql_return:.0f} over 10 episodes")
+    assert data_return > -400  # the data come from a good policy
+    assert cql_return > data_return - 150
