@@ -13,7 +13,7 @@ from envs.pd_controller import PDController
 ENV_IDS = {
     "Panda-v0": {},
     # One downward push of 60 N for one step (1/60 s) at 0.2 m pulls the 0.1 kg cylinder out of the 60 N
-    # grip and drops it back into the tray (45 N: the PD controller holds on in 6 of 16 episodes).
+    # grip and drops it back into the tray.
     "PandaForce-v0": {"force_magnitude": 60.0},
     "PandaPerturbed-v0": {"randomize_physics": True},
 }
