@@ -30,9 +30,13 @@ def main() -> None:
     parser.add_argument("--log-dir", default="logs/cql")
     parser.add_argument("--tensorboard-log", default=None)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cql-alpha", type=float, default=5.0)
+    parser.add_argument("--cql-target-action-gap", type=float, default=None, help="learn the Lagrange multiplier")
+    parser.add_argument("--bc-steps", type=int, default=0, help="behaviour-cloning warm start (gradient steps)")
     args = parser.parse_args()
 
     model = CQL("MlpPolicy", args.env, dataset=args.dataset_id, tensorboard_log=args.tensorboard_log, seed=args.seed,
+                cql_alpha=args.cql_alpha, cql_target_action_gap=args.cql_target_action_gap, bc_steps=args.bc_steps,
                 policy_kwargs={"net_arch": [256, 256, 256]}, verbose=1)  # fmt: skip
     eval_env = Monitor(gym.make(args.env), info_keywords=("is_success",))
     eval_env.reset(seed=args.seed)
