@@ -33,7 +33,7 @@ def time_raw(env: gym.Env, actions: np.ndarray, seed: int) -> float:
     unwrapped = env.unwrapped
     env.reset(seed=seed)
     robot, client = unwrapped.robot, unwrapped.sim.id
-    motors = list(zip(JOINTS, robot.motor_forces.tolist(), robot.max_velocities, strict=True))
+    motors = list(zip(JOINTS, robot.motor_forces, robot.max_velocities, strict=True))
     start = time.perf_counter()
     for step, action in enumerate(actions, start=1):
         # The same motor commands as the env's (PyBullet has no array call taking velocity limits).

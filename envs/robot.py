@@ -47,13 +47,13 @@ class Panda:
         self.lower_limits = np.array([info[8] for info in infos])
         self.upper_limits = np.array([info[9] for info in infos])
         n_arm = len(ARM_JOINTS)
-        self.motor_forces = np.array([config.arm_motor_force] * n_arm + [config.finger_motor_force] * len(FINGER_JOINTS))
+        #: Maximum motor torque (N m) or force (N) of each controlled joint.
+        self.motor_forces = [config.arm_motor_force] * n_arm + [config.finger_motor_force] * len(FINGER_JOINTS)
         self.max_delta = np.array([config.arm_max_delta] * n_arm + [config.finger_max_delta] * len(FINGER_JOINTS))
         self._client_id = sim.id
-        self._forces = self.motor_forces.tolist()
         # PyBullet ignores the URDF's joint velocity limits (and changeDynamics' maxJointVelocity caps every
         # joint of a body at once): they are passed to each motor. Without them random targets swing the arm
-        # at tens of rad/s and a finger closing on an escaping object launches it out of the scene.
+        # fast enough to press the object through the 2 cm tray floor.
         self.max_velocities = [info[11] for info in infos]
         self._null_space = {
             "lowerLimits": self.lower_limits.tolist(),
@@ -81,7 +81,7 @@ class Panda:
     def set_joint_targets(self, targets: np.ndarray) -> None:
         """Send 9 joint targets (within the limits) to the position controllers."""
         for joint, target, force, max_velocity in zip(
-            JOINTS, targets.tolist(), self._forces, self.max_velocities, strict=True
+            JOINTS, targets.tolist(), self.motor_forces, self.max_velocities, strict=True
         ):
             pybullet.setJointMotorControl2(
                 self.body,

@@ -40,9 +40,14 @@ def load_dataset(dataset_id: str) -> MinariDataset:
     return dataset
 
 
+def _name(dataset: MinariDataset) -> str:
+    """The dataset's id, or its folder for a dataset without one: the name every error gives."""
+    return dataset.spec.dataset_id if dataset.spec else str(dataset.storage.data_path)
+
+
 def check_spaces(dataset: MinariDataset, observation_space: spaces.Space, action_space: spaces.Space) -> None:
     """Raise :class:`DatasetError` unless the dataset's spaces have the env's shapes and bounds."""
-    name = dataset.spec.dataset_id if dataset.spec else str(dataset.storage.data_path)
+    name = _name(dataset)
     for what, data_space, env_space in (
         ("observation", dataset.observation_space, observation_space),
         ("action", dataset.action_space, action_space),
@@ -85,7 +90,7 @@ def fill_replay_buffer(
     if isinstance(dataset, str):
         dataset = load_dataset(dataset)
     check_spaces(dataset, observation_space, action_space)
-    name = dataset.spec.dataset_id if dataset.spec else str(dataset.storage.data_path)
+    name = _name(dataset)
     # The storage's own count: MinariDataset.total_steps reads every episode's attributes.
     n_transitions = dataset.storage.total_steps if len(dataset) == dataset.storage.total_episodes else dataset.total_steps
     if n_transitions == 0:
