@@ -14,6 +14,8 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_cql import CQL
 from sb3_cql.cql import NormalizedFlatten
+from sb3_cql.cql.allocator import retain_freed_memory
+from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset
 
 TINY = {"net_arch": [32, 32]}
@@ -191,3 +193,48 @@ def test_cql_learns_pendulum_from_a_good_policys_data():
     print(f"Pendulum-v1: data return {data_return:.0f}, CQL return {cql_return:.0f} over 10 episodes")
     assert data_return > -400  # the data come from a good policy
     assert cql_return > data_return - 150
+
+
+def test_fused_relu_mlp_computes_what_the_sequential_computes():
+    th.manual_seed(0)
+    network = th.nn.Sequential(th.nn.Linear(7, 16), th.nn.ReLU(), th.nn.Linear(16, 16), th.nn.ReLU(), th.nn.Linear(16, 1))
+    inputs = th.randn(300, 7, requires_grad=True)
+    expected = network(inputs)
+    expected_grads = th.autograd.grad(expected.square().sum(), [inputs, *network.parameters()])
+    fused = relu_mlp(inputs, relu_mlp_parameters(network))
+    grads = th.autograd.grad(fused.square().sum(), [inputs, *network.parameters()])
+    th.testing.assert_close(fused, expected)
+    for grad, expected_grad in zip(grads, expected_grads, strict=True):
+        th.testing.assert_close(grad, expected_grad, rtol=1e-4, atol=1e-5)
+    # With an input that needs no gradient (CQL's case) the parameters' gradients are the same.
+    fused = relu_mlp(inputs.detach(), relu_mlp_parameters(network))
+    grads = th.autograd.grad(fused.square().sum(), list(network.parameters()))
+    for grad, expected_grad in zip(grads, expected_grads[1:], strict=True):
+        th.testing.assert_close(grad, expected_grad, rtol=1e-4, atol=1e-5)
+
+
+def test_other_critic_networks_use_the_module_itself():
+    tanh = th.nn.Sequential(th.nn.Linear(3, 8), th.nn.Tanh(), th.nn.Linear(8, 1))
+    assert relu_mlp_parameters(tanh) is None
+    assert relu_mlp_parameters(th.nn.Sequential(th.nn.Linear(3, 1))) is not None  # no hidden layer
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, seed=0,
+                policy_kwargs={**TINY, "activation_fn": th.nn.Tanh})  # fmt: skip
+    model.learn(5)
+    assert model._n_updates == 5
+
+
+def test_policy_actions_are_sampled_as_from_repeated_states():
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, policy_kwargs=TINY, seed=0)
+    observations = th.randn(6, 3)
+    th.manual_seed(1)
+    actions, log_prob = model._sample_actions(observations, 4)
+    th.manual_seed(1)
+    expected_actions, expected_log_prob = model.actor.action_log_prob(observations.repeat_interleave(4, dim=0))
+    th.testing.assert_close(actions, expected_actions)
+    th.testing.assert_close(log_prob, expected_log_prob)
+
+
+def test_freed_memory_is_retained_on_glibc():
+    import platform
+
+    assert retain_freed_memory() == (platform.libc_ver()[0] == "glibc")
