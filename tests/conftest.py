@@ -1,4 +1,7 @@
+from collections.abc import Iterator
+
 import gymnasium as gym
+import postgres
 import pytest
 
 import envs
@@ -22,3 +25,17 @@ def make_env():
     yield _make
     for env in made:
         env.close()
+
+
+@pytest.fixture
+def postgres_url() -> Iterator[str]:
+    """SQLAlchemy URL of a database on a throw-away PostgreSQL server, stopped and deleted after the test.
+
+    Skips when the server or driver package is missing: tests using it are marked slow and run outside CI.
+    """
+    try:
+        postgres.site_dir()
+    except postgres.PostgresUnavailable as error:
+        pytest.skip(str(error))
+    with postgres.postgres_server() as url:
+        yield url

@@ -19,7 +19,7 @@ from torch.nn import functional as F
 from sb3_cql.cql.allocator import retain_freed_memory
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 from sb3_cql.cql.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
-from sb3_cql.data import fill_replay_buffer
+from sb3_cql.data import ensure_dataset, fill_replay_buffer
 
 SelfCQL = TypeVar("SelfCQL", bound="CQL")
 
@@ -50,7 +50,8 @@ class CQL(SAC):
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
     :param env: the environment (for its spaces, and the default evaluation env).
     :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
-        ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`).
+        ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`). A missing standard
+        id (``sb3cql/Panda-v0/pid-v0``, ...) is collected first (:func:`sb3_cql.data.ensure_dataset`).
     :param learning_rate: learning rate of the critics, the entropy coefficient and the Lagrange multiplier.
     :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
@@ -171,6 +172,8 @@ class CQL(SAC):
                 )
             self.replay_buffer = dataset
         else:
+            if isinstance(dataset, str):
+                dataset = ensure_dataset(dataset)
             self.replay_buffer = fill_replay_buffer(dataset, self.observation_space, self.action_space, device=self.device)
         size = self.replay_buffer.size()
         if size == 0:

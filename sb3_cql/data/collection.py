@@ -33,6 +33,7 @@ from tqdm import tqdm
 import envs
 from sb3_cql.data import ids
 from sb3_cql.data.ids import DEFAULT_NOISE, POLICIES
+from sb3_cql.data.replay import load_dataset
 
 #: Episodes written to disk at a time: the most an interruption can lose.
 WRITE_EVERY = 50
@@ -247,6 +248,27 @@ def collect_dataset(
     env.close()
     (partial / SPEC_FILE).unlink()
     return _publish(partial, final)
+
+
+def ensure_dataset(dataset_id: str, workers: int | None = None, progress_bar: bool = True) -> MinariDataset:
+    """The dataset ``dataset_id``, collected first if it is missing and its id is one of this package's standard
+    ones (``sb3cql/<task>/<pid|noisy|random>[-delta]-v0``: :class:`CollectionSpec`'s defaults, 10,000 episodes
+    from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted collection
+    resumes.
+
+    :param dataset_id: the Minari id.
+    :param workers: collection processes; by default one per CPU.
+    :param progress_bar: show the collection's progress.
+    """
+    parsed = ids.parse_dataset_id(dataset_id)
+    if (ids.dataset_path(dataset_id) / "data" / "metadata.json").exists() or parsed is None:
+        return load_dataset(dataset_id)
+    env_id, policy, action_mode, version = parsed
+    if version != 0 or env_id not in envs.ENV_IDS:
+        return load_dataset(dataset_id)
+    spec = CollectionSpec(env_id, policy, env_kwargs={"action_mode": action_mode} if action_mode != "absolute" else {})
+    print(f"Dataset {dataset_id} not found: collecting it ({spec.n_episodes} episodes), once.")
+    return collect_dataset(spec, dataset_id, workers=workers or os.cpu_count() or 1, progress_bar=progress_bar)
 
 
 def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False) -> MinariDataset:

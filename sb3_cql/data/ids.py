@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from minari.storage import get_dataset_path
@@ -29,3 +30,14 @@ def dataset_id(env_id: str, policy: str = "pid", action_mode: str = "absolute", 
 def dataset_path(dataset_id: str) -> Path:
     """Where Minari keeps ``dataset_id`` (under ``MINARI_DATASETS_PATH``, or ``~/.minari/datasets``)."""
     return get_dataset_path(dataset_id)
+
+
+def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int] | None:
+    """``(env_id, policy, action_mode, version)`` of an id made by :func:`dataset_id` with a named policy, else
+    ``None``: ``sb3cql/Panda-v0/noisy-delta-v0`` -> ``("Panda-v0", "noisy", "delta", 0)``."""
+    policies = "|".join(POLICIES)
+    match = re.fullmatch(rf"{NAMESPACE}/([^/]+)/({policies})(-delta)?-v(\d+)", dataset_id)
+    if match is None:
+        return None
+    env_id, policy, delta, version = match.groups()
+    return env_id, policy, "delta" if delta else "absolute", int(version)

@@ -1,0 +1,101 @@
+"""What the package adds to RL-Zoo3: ``cql`` in ``ALGOS``, the Panda tasks, the CQL search space, and our
+``hyperparams/`` files as the default config of our algorithm and tasks.
+
+:func:`extend` is called by :mod:`sb3_cql.zoo.hook` right after each zoo module in ``hook.TRIGGERS`` is imported;
+``import sb3_cql.zoo.plugin`` extends whichever of them are already loaded and installs the hook for the others.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+#: The algorithm the package adds to the zoo.
+ALGO = "cql"
+#: ``train.py``'s defaults of ``--eval-freq`` and ``--eval-episodes``: a config's ``eval_freq`` / ``n_eval_episodes``
+#: replace them, a value given on the command line (any other value) wins over the config.
+ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
+
+
+def hyperparams_dir() -> Path:
+    """Our zoo config files: ``hyperparams/`` of the source tree (editable installs), else the installed copy."""
+    for folder in (Path(__file__).resolve().parents[2] / "hyperparams", Path(sys.prefix) / "share" / "sb3-cql" / "hyperparams"):
+        if (folder / f"{ALGO}.yml").is_file():
+            return folder
+    raise FileNotFoundError("sb3-cql's hyperparams/ folder is missing: reinstall the package")
+
+
+def config_file(algo: str, env_id: str) -> Path | None:
+    """Our config for ``algo`` on ``env_id``: always for ``cql``, for other algorithms when our file has the env."""
+    import yaml
+
+    path = hyperparams_dir() / f"{algo}.yml"
+    if not path.is_file():
+        return None
+    if algo == ALGO:
+        return path
+    with open(path) as file:
+        return path if env_id in (yaml.safe_load(file) or {}) else None
+
+
+def extend(module: ModuleType) -> None:
+    """Add our part to the zoo module ``module`` (once; other modules are left alone)."""
+    extension = _EXTENSIONS.get(module.__name__)
+    if extension is not None and not getattr(module, "_sb3_cql_extended", False):
+        extension(module)
+        module._sb3_cql_extended = True  # type: ignore[attr-defined]
+
+
+def _extend_utils(utils: ModuleType) -> None:
+    import envs  # noqa: F401  (registers the tasks' gymnasium ids)
+    from sb3_cql.cql import CQL
+
+    utils.ALGOS.setdefault(ALGO, CQL)
+
+
+def _extend_hyperparams_opt(hyperparams_opt: ModuleType) -> None:
+    from sb3_cql.zoo.search_space import convert_cql_params, sample_cql_params
+
+    hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(ALGO, sample_cql_params)
+    hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(ALGO, convert_cql_params)
+
+
+def _extend_exp_manager(exp_manager: ModuleType) -> None:
+    manager = exp_manager.ExperimentManager
+    init, preprocess = manager.__init__, manager._preprocess_hyperparams
+    init_signature = inspect.signature(init)
+
+    @functools.wraps(init)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        if init_signature.bind(self, *args, **kwargs).arguments.get("config") is None:  # no --conf-file
+            ours = config_file(self.algo, self.env_name.gym_id)
+            if ours is not None:
+                self.config = str(ours)
+
+    @functools.wraps(preprocess)
+    def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
+        # Evaluation settings in a config: the zoo has command-line flags for them only.
+        eval_freq, n_eval_episodes = hyperparams.pop("eval_freq", None), hyperparams.pop("n_eval_episodes", None)
+        if eval_freq is not None and self.eval_freq == ZOO_DEFAULT_EVAL_FREQ:
+            self.eval_freq = int(eval_freq)
+        if n_eval_episodes is not None and self.n_eval_episodes == ZOO_DEFAULT_EVAL_EPISODES:
+            self.n_eval_episodes = int(n_eval_episodes)
+        return preprocess(self, hyperparams)
+
+    manager.__init__ = __init__
+    manager._preprocess_hyperparams = _preprocess_hyperparams
+
+
+_EXTENSIONS = {
+    "rl_zoo3.utils": _extend_utils,
+    "rl_zoo3.hyperparams_opt": _extend_hyperparams_opt,
+    "rl_zoo3.exp_manager": _extend_exp_manager,
+}
+
+# ``import sb3_cql.zoo.plugin`` by hand (e.g. without the .pth file) works too.
+from sb3_cql.zoo import hook  # noqa: E402,F401

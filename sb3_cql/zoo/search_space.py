@@ -1,0 +1,30 @@
+"""CQL's Optuna search space for ``python -m rl_zoo3.train --algo cql -optimize`` (the zoo's sampler protocol)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import optuna
+
+#: Network sizes by name, as in the zoo's off-policy samplers.
+NET_ARCHS = {"medium": [256, 256], "large": [256, 256, 256], "verybig": [512, 512, 512]}
+
+
+def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
+    """Sample the conservative weight, both learning rates, batch size, sampled actions and network size."""
+    params = {
+        "cql_alpha": trial.suggest_float("cql_alpha", 0.1, 20.0, log=True),
+        "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
+        "actor_learning_rate": trial.suggest_float("actor_learning_rate", 1e-5, 1e-3, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [128, 256, 352, 512]),
+        "cql_n_actions": trial.suggest_categorical("cql_n_actions", [4, 10, 20]),
+        "net_arch": trial.suggest_categorical("net_arch", list(NET_ARCHS)),
+    }
+    return convert_cql_params(params)
+
+
+def convert_cql_params(params: dict[str, Any]) -> dict[str, Any]:
+    """A trial's raw parameters as CQL keywords (``net_arch`` name -> ``policy_kwargs``)."""
+    hyperparams = dict(params)
+    hyperparams["policy_kwargs"] = {"net_arch": NET_ARCHS[hyperparams.pop("net_arch")]}
+    return hyperparams
