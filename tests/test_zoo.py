@@ -1,0 +1,148 @@
+"""RL-Zoo3 integration, through the zoo's own command lines in fresh interpreters, as users run them."""
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+import yaml
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+# Tiny networks and batches: the point is the plumbing, not the learning.
+TINY = ["--hyperparams", "batch_size:64", "policy_kwargs:dict(net_arch=[32, 32])"]
+
+
+class Zoo:
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/pid-v0``."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.env = {**os.environ, "MINARI_DATASETS_PATH": str(root / "datasets"), "MPLBACKEND": "Agg"}
+
+    def run(self, *args: str, module: str | None = "rl_zoo3.train", timeout: float = 600) -> str:
+        command = [sys.executable, "-m", module, *args] if module else list(args)
+        result = subprocess.run(command, cwd=self.root, env=self.env, capture_output=True, text=True, timeout=timeout)
+        assert result.returncode == 0, f"{' '.join(command)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+        return result.stdout
+
+    def python(self, code: str) -> str:
+        return self.run("-c", code, module=None).strip().splitlines()[-1]
+
+
+@pytest.fixture(scope="module")
+def zoo(tmp_path_factory) -> Zoo:
+    zoo = Zoo(tmp_path_factory.mktemp("zoo"))
+    zoo.run("collect", "--episodes", "4", module="sb3_cql.data")
+    return zoo
+
+
+@pytest.fixture(scope="module")
+def trained(zoo) -> Path:
+    """A zoo training of 200 gradient steps, evaluated every 100 (command-line values over the config's)."""
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "200", "--eval-freq", "100", "--eval-episodes", "2",
+            "-f", "logs", "-tb", "tb", "--seed", "0", *TINY)  # fmt: skip
+    return zoo.root / "logs" / "cql" / "Panda-v0_1"
+
+
+def python_in_fresh_interpreter(code: str) -> str:
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return result.stdout.strip().splitlines()[-1]
+
+
+def test_start_up_imports_neither_torch_nor_the_zoo():
+    code = "import sys; print([name for name in ('torch', 'rl_zoo3', 'stable_baselines3') if name in sys.modules])"
+    assert python_in_fresh_interpreter(code) == "[]"
+    code = "import sys; print([type(finder).__name__ for finder in sys.meta_path if type(finder).__name__ == 'ZooImportHook'])"
+    assert python_in_fresh_interpreter(code) == "['ZooImportHook']"  # the installed .pth put the hook in place
+
+
+def test_importing_the_zoo_registers_cql_the_tasks_and_the_search_space():
+    code = (
+        "import gymnasium; from rl_zoo3 import ALGOS; from rl_zoo3.hyperparams_opt import HYPERPARAMS_SAMPLER; "
+        "print(ALGOS['cql'].__module__, 'cql' in HYPERPARAMS_SAMPLER, 'PandaPerturbed-v0' in gymnasium.registry)"
+    )
+    assert python_in_fresh_interpreter(code) == "sb3_cql.cql.cql True True"
+
+
+def test_zoo_training_logs_evaluations_tensorboard_and_checkpoints(trained):
+    evaluations = np.load(trained / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [100, 200]
+    assert evaluations["results"].shape == (2, 2) and evaluations["successes"].shape == (2, 2)
+    assert (trained / "best_model.zip").is_file() and (trained / "Panda-v0.zip").is_file()
+    config = yaml.unsafe_load((trained / "Panda-v0" / "config.yml").read_text())
+    assert dict(config)["dataset"] == "sb3cql/Panda-v0/pid-v0"  # our hyperparams/cql.yml, found without --conf-file
+
+    (events,) = (trained.parents[2] / "tb" / "Panda-v0").glob("CQL_1/events.out.tfevents.*")
+    tags = EventAccumulator(str(events)).Reload().Tags()["scalars"]
+    for tag in ("train/critic_loss", "train/actor_loss", "train/cql_loss", "train/cql_q_data", "train/cql_q_random",
+                "train/cql_q_policy", "eval/success_rate", "eval/mean_reward"):  # fmt: skip
+        assert tag in tags, tag
+
+
+def test_enjoy_record_video_and_plots_work_on_the_trained_model(zoo, trained):
+    assert "Loading" in zoo.run("--algo", "cql", "--env", "Panda-v0", "-f", "logs", "--exp-id", "1", "-n", "20",
+                                "--no-render", module="rl_zoo3.enjoy")  # fmt: skip
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-f", "logs", "--exp-id", "1", "-n", "10", "-o", "videos",
+            module="rl_zoo3.record_video")  # fmt: skip
+    assert list((zoo.root / "videos").glob("*.mp4"))
+    zoo.run("-a", "cql", "-e", "Panda-v0", "-f", "logs/", "--no-display", "-o", "plots", "-k", "successes",
+            module="rl_zoo3.plots.all_plots")  # fmt: skip
+    assert (zoo.root / "plots.pkl").is_file()
+
+
+def test_evaluation_settings_come_from_the_config(zoo):
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "150", "-f", "config-eval", *TINY,
+            "eval_freq:75", "n_eval_episodes:1")  # fmt: skip
+    evaluations = np.load(zoo.root / "config-eval" / "cql" / "Panda-v0_1" / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [75, 150] and evaluations["results"].shape == (2, 1)
+
+
+def test_console_script_with_an_explicit_config_file(zoo):
+    rl_zoo3 = shutil.which("rl_zoo3")
+    assert rl_zoo3 is not None
+    (zoo.root / "mine.yml").write_text(
+        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 20\n  dataset: sb3cql/Panda-v0/pid-v0\n  batch_size: 16\n"
+        "  policy_kwargs: 'dict(net_arch=[8])'\n"
+    )
+    zoo.run(rl_zoo3, "train", "--algo", "cql", "--env", "Panda-v0", "-n", "20", "--eval-freq", "-1", "-f", "mine",
+            "--conf-file", "mine.yml", module=None)  # fmt: skip
+    config = dict(yaml.unsafe_load((zoo.root / "mine" / "cql" / "Panda-v0_1" / "Panda-v0" / "config.yml").read_text()))
+    assert config["batch_size"] == 16 and "eval_freq" not in config  # mine.yml, not hyperparams/cql.yml
+
+
+def test_sac_baseline_starts_from_the_dataset(zoo):
+    output = zoo.run("--algo", "sac", "--env", "Panda-v0", "-n", "30", "--eval-freq", "-1", "-f", "sac", *TINY,
+                     "learning_starts:10", "callback:[{'sb3_cql.callbacks.PrefillReplayBuffer': "
+                     "{'dataset': 'sb3cql/Panda-v0/pid-v0', 'verbose': 1}}]")  # fmt: skip
+    assert "Replay buffer: 697 transitions from sb3cql/Panda-v0/pid-v0" in output
+
+
+def test_tuning_with_sqlite_storage(zoo):
+    storage = f"sqlite:///{zoo.root / 'study.db'}"
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "40", "--eval-episodes", "1", "-optimize", "--n-trials", "2",
+            "--n-evaluations", "1", "--storage", storage, "--study-name", "cql", "-f", "tuning", "--no-optim-plots",
+            "--hyperparams", "policy_kwargs:dict(net_arch=[8])")  # fmt: skip
+    trials = optuna.load_study(study_name="cql", storage=storage).get_trials(states=[optuna.trial.TrialState.COMPLETE])
+    assert len(trials) == 2
+    assert set(trials[0].params) == {"cql_alpha", "learning_rate", "actor_learning_rate", "batch_size", "cql_n_actions",
+                                     "net_arch"}  # fmt: skip
+
+
+@pytest.mark.slow
+def test_tuning_processes_share_a_postgresql_study(zoo, postgres_url):
+    optuna.create_study(storage=postgres_url, study_name="cql", direction="maximize")
+    args = ["--algo", "cql", "--env", "Panda-v0", "-n", "40", "--eval-episodes", "1", "-optimize", "--n-trials", "2",
+            "--n-evaluations", "1", "--storage", postgres_url, "--study-name", "cql", "--no-optim-plots",
+            "--hyperparams", "policy_kwargs:dict(net_arch=[8])"]  # fmt: skip
+    workers = [
+        subprocess.Popen([sys.executable, "-m", "rl_zoo3.train", *args, "-f", f"worker{i}"], cwd=zoo.root, env=zoo.env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        for i in range(2)
+    ]
+    assert [worker.wait(timeout=600) for worker in workers] == [0, 0]
+    trials = optuna.load_study(study_name="cql", storage=postgres_url).get_trials(states=[optuna.trial.TrialState.COMPLETE])
+    assert len(trials) == 4
