@@ -13,6 +13,7 @@ from sb3_cql.data import (
     DatasetError,
     collect_dataset,
     dataset_path,
+    ensure_dataset,
     fill_replay_buffer,
     load_dataset,
     mix_datasets,
@@ -193,6 +194,17 @@ def test_dataset_that_does_not_fit_the_env_is_rejected():
 def test_missing_dataset_is_named_in_the_error():
     with pytest.raises(DatasetError, match="sb3cql/Panda-v0/nothing-v0 not found"):
         load_dataset("sb3cql/Panda-v0/nothing-v0")
+
+
+def test_missing_standard_dataset_is_collected_once():
+    dataset = ensure_dataset("sb3cql/Panda-v0/pid-delta-v0", n_episodes=2, progress_bar=False)
+    metadata = dataset.storage.metadata
+    assert dataset.total_episodes == 2 and metadata["dataset_id"] == "sb3cql/Panda-v0/pid-delta-v0"
+    assert dataset.recover_environment().unwrapped.action_mode == "delta"
+    assert ensure_dataset("sb3cql/Panda-v0/pid-delta-v0", n_episodes=3).total_episodes == 2  # found, not collected again
+    for unknown in ("sb3cql/Panda-v0/mixed-v0", "sb3cql/Panda-v0/pid-v1", "sb3cql/Nothing-v0/pid-v0", "other/x-v0"):
+        with pytest.raises(DatasetError, match="not found"):
+            ensure_dataset(unknown, n_episodes=1)
 
 
 def test_truncated_dataset_file_is_reported():

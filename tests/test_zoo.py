@@ -68,6 +68,14 @@ def test_importing_the_zoo_registers_cql_the_tasks_and_the_search_space():
     assert python_in_fresh_interpreter(code) == "sb3_cql.cql.cql True True"
 
 
+def test_importing_the_plugin_by_hand_extends_a_zoo_loaded_without_the_hook():
+    code = (
+        "import sys; sys.meta_path[:] = [f for f in sys.meta_path if type(f).__name__ != 'ZooImportHook']; "
+        "from rl_zoo3 import ALGOS; before = 'cql' in ALGOS; import sb3_cql.zoo.plugin; print(before, 'cql' in ALGOS)"
+    )
+    assert python_in_fresh_interpreter(code) == "False True"
+
+
 def test_zoo_training_logs_evaluations_tensorboard_and_checkpoints(trained):
     evaluations = np.load(trained / "evaluations.npz")
     assert evaluations["timesteps"].tolist() == [100, 200]
@@ -139,8 +147,13 @@ def test_tuning_processes_share_a_postgresql_study(zoo, postgres_url):
             "--n-evaluations", "1", "--storage", postgres_url, "--study-name", "cql", "--no-optim-plots",
             "--hyperparams", "policy_kwargs:dict(net_arch=[8])"]  # fmt: skip
     workers = [
-        subprocess.Popen([sys.executable, "-m", "rl_zoo3.train", *args, "-f", f"worker{i}"], cwd=zoo.root, env=zoo.env,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        subprocess.Popen(
+            [sys.executable, "-m", "rl_zoo3.train", *args, "-f", f"worker{i}"],
+            cwd=zoo.root,
+            env=zoo.env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )  # fmt: skip
         for i in range(2)
     ]
     assert [worker.wait(timeout=600) for worker in workers] == [0, 0]

@@ -250,13 +250,16 @@ def collect_dataset(
     return _publish(partial, final)
 
 
-def ensure_dataset(dataset_id: str, workers: int | None = None, progress_bar: bool = True) -> MinariDataset:
+def ensure_dataset(
+    dataset_id: str, n_episodes: int | None = None, workers: int | None = None, progress_bar: bool = True
+) -> MinariDataset:
     """The dataset ``dataset_id``, collected first if it is missing and its id is one of this package's standard
-    ones (``sb3cql/<task>/<pid|noisy|random>[-delta]-v0``: :class:`CollectionSpec`'s defaults, 10,000 episodes
-    from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted collection
-    resumes.
+    ones (``sb3cql/<task>/<pid|noisy|random>[-delta]-v0``, collected with :class:`CollectionSpec`'s defaults:
+    10,000 episodes from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted
+    collection resumes.
 
     :param dataset_id: the Minari id.
+    :param n_episodes: episodes of a collection; ``None`` for :class:`CollectionSpec`'s default.
     :param workers: collection processes; by default one per CPU.
     :param progress_bar: show the collection's progress.
     """
@@ -266,7 +269,8 @@ def ensure_dataset(dataset_id: str, workers: int | None = None, progress_bar: bo
     env_id, policy, action_mode, version = parsed
     if version != 0 or env_id not in envs.ENV_IDS:
         return load_dataset(dataset_id)
-    spec = CollectionSpec(env_id, policy, env_kwargs={"action_mode": action_mode} if action_mode != "absolute" else {})
+    env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
+    spec = CollectionSpec(env_id, policy, env_kwargs=env_kwargs, **({} if n_episodes is None else {"n_episodes": n_episodes}))
     print(f"Dataset {dataset_id} not found: collecting it ({spec.n_episodes} episodes), once.")
     return collect_dataset(spec, dataset_id, workers=workers or os.cpu_count() or 1, progress_bar=progress_bar)
 

@@ -7,6 +7,7 @@ Imported at start-up by ``sb3_cql-zoo.pth``: it must stay cheap (``sys`` only, n
 from __future__ import annotations
 
 import sys
+
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing at start-up
 if TYPE_CHECKING:
     from importlib.machinery import ModuleSpec

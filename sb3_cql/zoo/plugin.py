@@ -23,7 +23,8 @@ ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
 
 def hyperparams_dir() -> Path:
     """Our zoo config files: ``hyperparams/`` of the source tree (editable installs), else the installed copy."""
-    for folder in (Path(__file__).resolve().parents[2] / "hyperparams", Path(sys.prefix) / "share" / "sb3-cql" / "hyperparams"):
+    source_tree, installed = Path(__file__).resolve().parents[2], Path(sys.prefix) / "share" / "sb3-cql"
+    for folder in (source_tree / "hyperparams", installed / "hyperparams"):
         if (folder / f"{ALGO}.yml").is_file():
             return folder
     raise FileNotFoundError("sb3-cql's hyperparams/ folder is missing: reinstall the package")
@@ -97,5 +98,8 @@ _EXTENSIONS = {
     "rl_zoo3.exp_manager": _extend_exp_manager,
 }
 
-# ``import sb3_cql.zoo.plugin`` by hand (e.g. without the .pth file) works too.
-from sb3_cql.zoo import hook  # noqa: E402,F401
+# ``import sb3_cql.zoo.plugin`` by hand (e.g. where the .pth file is not processed) extends the zoo modules already
+# imported and hooks the others.
+from sb3_cql.zoo import hook  # noqa: E402
+
+hook.install()
