@@ -159,3 +159,21 @@ def test_tuning_processes_share_a_postgresql_study(zoo, postgres_url):
     assert [worker.wait(timeout=600) for worker in workers] == [0, 0]
     trials = optuna.load_study(study_name="cql", storage=postgres_url).get_trials(states=[optuna.trial.TrialState.COMPLETE])
     assert len(trials) == 4
+
+
+def test_a_model_trained_on_one_task_is_evaluated_on_the_others(zoo, trained):
+    output = zoo.run(str(trained / "best_model.zip"), "--algo", "cql", "--env", "PandaForce-v0", "PandaPerturbed-v0",
+                     "-n", "1", module="sb3_cql.evaluate")  # fmt: skip
+    lines = [line for line in output.splitlines() if "success rate" in line]
+    assert [line.split(":")[0] for line in lines] == ["PandaForce-v0", "PandaPerturbed-v0"]
+
+
+def test_evaluation_is_deterministic_given_the_seed():
+    from sb3_cql.evaluate import load_policy, success_rate
+
+    controller = load_policy("pid", None, "PandaPerturbed-v0")
+    first, again = (success_rate(controller, "PandaPerturbed-v0", n_episodes=4, seed=3) for _ in range(2))
+    assert first == again
+    assert success_rate(controller, "Panda-v0", n_episodes=2, seed=0) == 1.0
+    with pytest.raises(ValueError, match="unknown algo"):
+        load_policy("model.zip", "nothing", "Panda-v0")

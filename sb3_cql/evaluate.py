@@ -1,0 +1,80 @@
+"""Success rate of a policy on each of the tasks: a model trained on one task, evaluated on all three.
+
+    python -m sb3_cql.evaluate logs/cql/Panda-v0_1/best_model.zip --algo cql -n 100 --seed 0
+    python -m sb3_cql.evaluate pid --env Panda-v0 PandaForce-v0 -n 100
+
+``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...) or ``pid`` for the PD controller.
+Episodes are deterministic given ``--seed``: the env is reset with it once, and its own generator seeds the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import envs
+
+
+def success_rate(policy: Any, env_id: str, n_episodes: int = 100, seed: int = 0, deterministic: bool = True) -> float:
+    """Fraction of ``n_episodes`` episodes of ``env_id`` that ``policy`` (anything with SB3's ``predict``) succeeds in.
+
+    :param policy: an SB3 model or :class:`envs.PDController`.
+    :param env_id: the task.
+    :param n_episodes: episodes.
+    :param seed: seed of the env's first reset.
+    :param deterministic: use the policy's deterministic actions.
+    """
+    env = DummyVecEnv([lambda: Monitor(gym.make(env_id))])
+    env.seed(seed)
+    successes: list[bool] = []
+
+    def record_success(local_vars: dict[str, Any], _globals: dict[str, Any]) -> None:
+        if local_vars["done"]:
+            successes.append(bool(local_vars["info"].get("is_success", False)))
+
+    evaluate_policy(policy, env, n_eval_episodes=n_episodes, deterministic=deterministic, callback=record_success)
+    env.close()
+    return float(np.mean(successes))
+
+
+def load_policy(model: str, algo: str | None, env_id: str) -> Any:
+    """The PD controller for ``pid``, else the SB3 model saved at ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
+    if model == "pid":
+        env = gym.make(env_id)
+        controller = envs.PDController.for_env(env)
+        env.close()
+        return controller
+    if algo is None:
+        raise ValueError("a saved model needs --algo (cql, sac, ...)")
+    from rl_zoo3.utils import ALGOS  # our plugin adds cql
+
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algo {algo!r}: one of {sorted(ALGOS)}")
+    return ALGOS[algo].load(model, device="cpu")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m sb3_cql.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("model", help="path of a saved SB3 model, or pid")
+    parser.add_argument("--algo", default=None, help="RL-Zoo3 name of the model's algorithm (cql, sac, ...)")
+    parser.add_argument("--env", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
+    parser.add_argument("-n", "--n-episodes", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic ones")
+    args = parser.parse_args(argv)
+    for env_id in args.env:
+        policy = load_policy(args.model, args.algo, env_id)
+        rate = success_rate(policy, env_id, args.n_episodes, args.seed, deterministic=not args.stochastic)
+        print(f"{env_id}: success rate {rate:.3f} over {args.n_episodes} episodes (seed {args.seed})")
+
+
+if __name__ == "__main__":
+    main()
