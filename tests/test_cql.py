@@ -114,8 +114,9 @@ def test_divergence_stops_with_the_step():
     buffer = random_pendulum_buffer(100)
     buffer.rewards[50] = np.inf
     model = CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=100, policy_kwargs=TINY)
-    with pytest.raises(FloatingPointError, match="gradient step 1"):
+    with pytest.raises(FloatingPointError, match="gradient step 1") as error:
         model.learn(5)
+    assert isinstance(error.value, ValueError)  # the zoo's tuning prunes such a trial
 
 
 class OneStepBandit(gym.Env):

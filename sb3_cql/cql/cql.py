@@ -27,6 +27,11 @@ SelfCQL = TypeVar("SelfCQL", bound="CQL")
 MAX_ALPHA_PRIME = 1e6
 
 
+class TrainingDivergedError(FloatingPointError, ValueError):
+    """The critic loss became NaN or infinite. A ``ValueError`` too, so that RL-Zoo3's tuning prunes the trial
+    (it prunes on ``ValueError``) instead of ending the whole study."""
+
+
 class CQL(SAC):
     """Conservative Q-Learning, CQL(H) (Kumar et al. 2020, https://arxiv.org/abs/2006.04779), trained offline.
 
@@ -269,7 +274,7 @@ class CQL(SAC):
             critic_loss = td_loss + conservative_loss
             critic_loss_value = critic_loss.item()
             if not math.isfinite(critic_loss_value):
-                raise FloatingPointError(
+                raise TrainingDivergedError(
                     f"CQL's critic loss is {critic_loss_value} at gradient step {self.num_timesteps + 1}: training "
                     f"diverged (try a lower learning_rate, reward scaling or cql_target_action_gap)"
                 )
