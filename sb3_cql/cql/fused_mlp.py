@@ -1,11 +1,12 @@
 """A ReLU MLP's forward and backward as one autograd node: the same function and gradients as the ``nn.Sequential``
-SB3 builds, with fewer memory passes.
+SB3 builds, with fewer passes over memory.
 
 CQL pushes ``batch * (1 + 3 * n_actions)`` rows (10,912 at the thesis's configuration) through each critic, so a
-step is dominated by 10,912 x 256 activations. ``nn.Sequential`` allocates a fresh output for every ReLU and its
-gradient, and multiplies by transposed weights; here the ReLU runs in place on the matrix product, the weights are
-laid out once per call for the product, and no gradient is computed for the input unless it needs one
-(``benchmarks/cql_speed.py`` measures the effect).
+step is dominated by 10,912 x 256 activations. ``nn.Sequential`` writes the matrix product, then a fresh ReLU output,
+and in the backward a fresh ReLU gradient, and computes a gradient for its input. Here each hidden layer is one
+oneDNN ``linear + ReLU`` (bias and ReLU applied inside the product; ``addmm`` and an in-place ReLU where this torch
+build lacks it), and the input's gradient is computed only if the input needs one (CQL's inputs do not).
+``benchmarks/cql_speed.py`` measures the whole step.
 """
 
 from __future__ import annotations
