@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
@@ -56,7 +57,9 @@ def load_policy(model: str, algo: str | None, env_id: str) -> Any:
 
     if algo not in ALGOS:
         raise ValueError(f"unknown algo {algo!r}: one of {sorted(ALGOS)}")
-    return ALGOS[algo].load(model, device="cpu")
+    # As the zoo's enjoy does: an off-policy model needs no replay buffer to act.
+    kwargs = {"buffer_size": 1} if issubclass(ALGOS[algo], OffPolicyAlgorithm) else {}
+    return ALGOS[algo].load(model, device="cpu", **kwargs)
 
 
 def main(argv: list[str] | None = None) -> None:
