@@ -73,8 +73,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic ones")
     args = parser.parse_args(argv)
+    model = None if args.model == "pid" else load_policy(args.model, args.algo, args.env[0])  # loaded once
     for env_id in args.env:
-        policy = load_policy(args.model, args.algo, env_id)
+        policy = model if model is not None else load_policy(args.model, args.algo, env_id)  # PD: one per task
         rate = success_rate(policy, env_id, args.n_episodes, args.seed, deterministic=not args.stochastic)
         print(f"{env_id}: success rate {rate:.3f} over {args.n_episodes} episodes (seed {args.seed})")
 

@@ -264,11 +264,9 @@ def ensure_dataset(
     :param progress_bar: show the collection's progress.
     """
     parsed = ids.parse_dataset_id(dataset_id)
-    if (ids.dataset_path(dataset_id) / "data" / "metadata.json").exists() or parsed is None:
-        return load_dataset(dataset_id)
-    env_id, policy, action_mode, version = parsed
-    if version != 0 or env_id not in envs.ENV_IDS:
-        return load_dataset(dataset_id)
+    if ids.dataset_exists(dataset_id) or parsed is None or parsed[3] != 0 or parsed[0] not in envs.ENV_IDS:
+        return load_dataset(dataset_id)  # an error naming the id if it is missing
+    env_id, policy, action_mode, _ = parsed
     env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
     spec = CollectionSpec(env_id, policy, env_kwargs=env_kwargs, **({} if n_episodes is None else {"n_episodes": n_episodes}))
     print(f"Dataset {dataset_id} not found: collecting it ({spec.n_episodes} episodes), once.")

@@ -32,6 +32,11 @@ def dataset_path(dataset_id: str) -> Path:
     return get_dataset_path(dataset_id)
 
 
+def dataset_exists(dataset_id: str) -> bool:
+    """Whether ``dataset_id`` is a complete dataset on disk (Minari writes ``metadata.json`` last)."""
+    return (dataset_path(dataset_id) / "data" / "metadata.json").exists()
+
+
 def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int] | None:
     """``(env_id, policy, action_mode, version)`` of an id made by :func:`dataset_id` with a named policy, else
     ``None``: ``sb3cql/Panda-v0/noisy-delta-v0`` -> ``("Panda-v0", "noisy", "delta", 0)``."""

@@ -27,7 +27,7 @@ def load_dataset(dataset_id: str) -> MinariDataset:
     """Open the Minari dataset ``dataset_id``, with an error naming it (and how to make it) if it is missing
     or unreadable."""
     path = ids.dataset_path(dataset_id)
-    if not (path / "data" / "metadata.json").exists():
+    if not ids.dataset_exists(dataset_id):
         raise DatasetError(
             f"dataset {dataset_id} not found at {path} (MINARI_DATASETS_PATH or ~/.minari/datasets); "
             f"collect it with: python -m sb3_cql.data collect --dataset-id {dataset_id} ..."
