@@ -30,7 +30,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 
 from sb3_cql import CQL
-from sb3_cql.cql import allocator
+from sb3_cql.common import allocator
 
 OBS_DIM, ACTION_DIM, BATCH, HIDDEN, N_ACTIONS, N_DATA = 29, 9, 352, [256, 256, 256], 10, 20_000
 

@@ -42,8 +42,9 @@ class PDController:
     Memoryless: the phase is read from the observation. With the gripper open it moves above the object,
     descends to it, and closes once aligned within the grasp tolerances; once the fingers have closed to
     the object's width it lifts to ``LIFT_HEIGHT``. A dropped object is not regrasped (the fingers stay
-    closed), as in the thesis's controller. The "derivative" of the thesis's PID is ``k_d * error / dt``, a
-    second proportional term: here both are the single gain ``kp``.
+    closed), as in the thesis's controller. In ``"delta"`` mode the gripper's actions are +1 (open) or -1
+    (close). The "derivative" of the thesis's PID is ``k_d * error / dt``, a second proportional term: here
+    both are the single gain ``kp``.
 
     Inverse kinematics runs on a robot in a DIRECT simulator of the controller's own, reset to the observed
     joints, so it never disturbs the environment's simulation.
@@ -121,7 +122,12 @@ class PDController:
         step = np.clip(self.kp * (target - ee), -self.max_step, self.max_step)
         targets = self.robot.inverse_kinematics(joints, ee + step, HAND_ORIENTATION)
         targets[-len(FINGER_JOINTS) :] = fingers
-        return self.robot.action_from_targets(targets, joints)
+        action = self.robot.action_from_targets(targets, joints)
+        if self.robot.action_mode == "delta":
+            # The gripper is commanded fully open or fully closed (+1 / -1), not "hold where you are" (0), which a
+            # learned policy imitates with a small bias that closes the fingers step by step before the grasp.
+            action[-len(FINGER_JOINTS) :] = 1.0 if fingers > 0 else -1.0
+        return action
 
     def close(self) -> None:
         """Release the controller's own simulator."""

@@ -4,13 +4,17 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str):
-    # CQL loads torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
+    # CQL and BC load torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
     # collection workers start without them.
     if name == "CQL":
         from sb3_cql.cql import CQL
 
         return CQL
+    if name == "BC":
+        from sb3_cql.bc import BC
+
+        return BC
     raise AttributeError(f"module 'sb3_cql' has no attribute {name!r}")
 
 
-__all__ = ["CQL", "__version__"]
+__all__ = ["BC", "CQL", "__version__"]

@@ -13,8 +13,8 @@ from stable_baselines3.common.logger import Logger, configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_cql import CQL
+from sb3_cql.common.allocator import retain_freed_memory
 from sb3_cql.cql import NormalizedFlatten
-from sb3_cql.cql.allocator import retain_freed_memory
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset
 

@@ -195,6 +195,20 @@ def test_pd_controller_solves_panda(action_mode, make_env):
     assert all(len(infos) < 300 for _, infos in results)
 
 
+def test_pd_controller_commands_the_gripper_fully_open_or_closed_in_delta_mode(make_env):
+    env = make_env("Panda-v0", action_mode="delta")
+    controller = envs.PDController.for_env(env)
+    observation, _ = env.reset(seed=0)
+    finger_actions = set()
+    for _ in range(300):
+        action, _ = controller.predict(observation)
+        finger_actions.update(action[-2:].tolist())
+        observation, _, terminated, _, _ = env.step(action)
+        if terminated:
+            break
+    assert finger_actions == {-1.0, 1.0}
+
+
 def test_force_knocks_the_object_out_once(make_env):
     env = make_env("PandaForce-v0")
     controller = envs.PDController.for_env(env)

@@ -3,23 +3,19 @@
 from __future__ import annotations
 
 import math
-import time
-from typing import Any, ClassVar, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import torch as th
 from minari import MinariDataset
-from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.utils import FloatSchedule, polyak_update, update_learning_rate
+from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.cql.allocator import retain_freed_memory
+from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
-from sb3_cql.cql.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
-from sb3_cql.data import ensure_dataset, fill_replay_buffer
 
 SelfCQL = TypeVar("SelfCQL", bound="CQL")
 
@@ -32,7 +28,7 @@ class TrainingDivergedError(FloatingPointError, ValueError):
     (it prunes on ``ValueError``) instead of ending the whole study."""
 
 
-class CQL(SAC):
+class CQL(OfflineSAC):
     """Conservative Q-Learning, CQL(H) (Kumar et al. 2020, https://arxiv.org/abs/2006.04779), trained offline.
 
     :meth:`train` is SAC's with one more critic loss term: for each critic,
@@ -44,10 +40,11 @@ class CQL(SAC):
     densities, and ``T`` is ``cql_temperature``. With ``cql_target_action_gap`` set, the term becomes
     ``alpha' * (term - gap)`` with the multiplier ``alpha'`` learned by dual gradient ascent.
 
-    Training is offline: the replay buffer is filled from ``dataset`` and :meth:`learn` makes one gradient step per
-    timestep, stepping the env never (it only gives the spaces, and callbacks such as ``EvalCallback`` use their
-    own envs). Observations are z-scored with the dataset's statistics (``normalize_observations``) inside the
-    policy, so ``predict`` applies the same normalisation after ``save``/``load``.
+    Training is offline (:class:`~sb3_cql.common.OfflineSAC`): the replay buffer is filled from ``dataset`` and
+    :meth:`learn` makes one gradient step per timestep, stepping the env never (it only gives the spaces, and
+    callbacks such as ``EvalCallback`` use their own envs). Observations are z-scored with the dataset's
+    statistics (``normalize_observations``) inside the policy, so ``predict`` applies the same normalisation after
+    ``save``/``load``.
 
     Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
     learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere.
@@ -72,8 +69,9 @@ class CQL(SAC):
     :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
-    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning (log-likelihood of the data
-        actions) instead of the Q-value.
+    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning (mean squared error of its
+        deterministic actions to the data actions, :func:`~sb3_cql.common.behaviour_cloning_loss`) instead of the
+        Q-value; the critics train as usual meanwhile.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
@@ -82,12 +80,6 @@ class CQL(SAC):
     :param device: torch device.
     :param _init_setup_model: build the networks now.
     """
-
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
-        "MlpPolicy": MlpPolicy,
-        "CnnPolicy": CnnPolicy,
-        "MultiInputPolicy": MultiInputPolicy,
-    }
 
     def __init__(
         self,
@@ -120,8 +112,6 @@ class CQL(SAC):
     ) -> None:
         if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0:
             raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0 and cql_alpha >= 0")
-        self.dataset = dataset
-        self.actor_learning_rate = actor_learning_rate
         self.cql_alpha = cql_alpha
         self.cql_n_actions = cql_n_actions
         self.cql_temperature = cql_temperature
@@ -129,20 +119,17 @@ class CQL(SAC):
         self.cql_deterministic_backup = cql_deterministic_backup
         self.cql_max_backup = cql_max_backup
         self.bc_steps = bc_steps
-        self.normalize_observations = normalize_observations
-        self._fill_on_setup = True  # CQL.load turns it off: a loaded model does not reload its data
         self.log_alpha_prime: th.Tensor | None = None
         self.alpha_prime_optimizer: th.optim.Adam | None = None
-        policy_kwargs = dict(policy_kwargs or {})
-        if normalize_observations and policy in ("MlpPolicy", MlpPolicy):
-            policy_kwargs.setdefault("features_extractor_class", NormalizedFlatten)
         super().__init__(
             policy,
             env,
+            dataset=dataset,
             learning_rate=learning_rate,
-            # The dataset's own buffer replaces SB3's: allocate nothing here.
-            buffer_size=1 if dataset is not None else buffer_size,
-            learning_starts=0,
+            actor_learning_rate=actor_learning_rate,
+            buffer_size=buffer_size,
+            normalize_observations=normalize_observations,
+            policy_kwargs=policy_kwargs,
             batch_size=batch_size,
             tau=tau,
             gamma=gamma,
@@ -150,7 +137,6 @@ class CQL(SAC):
             target_entropy=target_entropy,
             target_update_interval=target_update_interval,
             tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
             verbose=verbose,
             seed=seed,
             device=device,
@@ -159,35 +145,9 @@ class CQL(SAC):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
-        self.actor_lr_schedule = FloatSchedule(rate)
         if self.cql_target_action_gap is not None:
             self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
-        if self.dataset is not None and self._fill_on_setup:
-            self._fill_from_dataset(self.dataset)
-            self.dataset = self.dataset if isinstance(self.dataset, str) else None  # never pickle data into a model
-
-    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
-        if isinstance(dataset, ReplayBuffer):
-            if dataset.obs_shape != self.observation_space.shape or dataset.action_dim != self.action_space.shape[0]:
-                raise ValueError(
-                    f"the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) do not "
-                    f"match the env's {self.observation_space.shape} and {self.action_space.shape}"
-                )
-            self.replay_buffer = dataset
-        else:
-            if isinstance(dataset, str):
-                dataset = ensure_dataset(dataset)
-            self.replay_buffer = fill_replay_buffer(dataset, self.observation_space, self.action_space, device=self.device)
-        size = self.replay_buffer.size()
-        if size == 0:
-            raise ValueError("the dataset holds no transitions")
-        if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
-            observations = self.replay_buffer.observations[:size].reshape(size, -1)
-            mean, std = observations.mean(axis=0), observations.std(axis=0)
-            for module in (self.actor, self.critic, self.critic_target):
-                module.features_extractor.set_statistics(mean, std)
 
     def learn(
         self: SelfCQL,
@@ -198,45 +158,7 @@ class CQL(SAC):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfCQL:
-        """Make ``total_timesteps`` gradient steps on the replay buffer, calling the callbacks after each one.
-
-        :param total_timesteps: gradient steps.
-        :param callback: SB3 callback(s), called once per gradient step.
-        :param log_interval: gradient steps between two dumps of the logs.
-        :param tb_log_name: name of the TensorBoard run.
-        :param reset_num_timesteps: count from 0 (else continue the count of a previous ``learn``).
-        :param progress_bar: show a progress bar of the gradient steps.
-        """
-        if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
-            size = 0 if self.replay_buffer is None else self.replay_buffer.size()
-            raise ValueError(f"offline training needs batch_size={self.batch_size} transitions or more, the buffer has {size}")
-        # CPU torch slows down by 40x on denormal floats, which near-converged networks produce.
-        th.set_flush_denormal(True)
-        # Each step allocates and frees ~11 MB activations: keep that memory instead of page-faulting it back in.
-        retain_freed_memory()
-        total_timesteps, callback = self._setup_learn(
-            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
-        )
-        callback.on_training_start(locals(), globals())
-        while self.num_timesteps < total_timesteps:
-            self.train(gradient_steps=1, batch_size=self.batch_size)
-            self.num_timesteps += 1
-            self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
-            callback.update_locals(locals())
-            if not callback.on_step():
-                break
-            if log_interval > 0 and self.num_timesteps % log_interval == 0:
-                self._dump_offline_logs()
-        callback.on_training_end()
-        return self
-
-    def _dump_offline_logs(self) -> None:
-        elapsed = max(time.time_ns() - self.start_time, 1) / 1e9
-        steps = self.num_timesteps - self._num_timesteps_at_start
-        self.logger.record("time/gradient_steps_per_s", int(steps / elapsed))
-        self.logger.record("time/time_elapsed", int(elapsed), exclude="tensorboard")
-        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
-        self.logger.dump(step=self.num_timesteps)
+        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's update with the conservative term added to the critic loss (and, with ``cql_target_action_gap``,
@@ -283,11 +205,8 @@ class CQL(SAC):
             self.critic.optimizer.step()
 
             if self.num_timesteps < self.bc_steps:
-                # Behaviour-cloning warm start: the data actions' log-likelihood replaces the Q-value.
-                mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
-                distribution = self.actor.action_dist.proba_distribution(mean_actions, log_std, **kwargs)
-                data_actions = data.actions.clamp(-1 + 1e-6, 1 - 1e-6)
-                actor_loss = (ent_coef * log_prob - distribution.log_prob(data_actions).reshape(-1, 1)).mean()
+                # Behaviour-cloning warm start: the actor imitates the data actions (as sb3_cql.BC does).
+                actor_loss = behaviour_cloning_loss(self.actor, data.observations, data.actions)
             else:
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
@@ -401,19 +320,6 @@ class CQL(SAC):
         _append(logs, "train/cql_alpha_prime", alpha_prime.item())
         _append(logs, "train/cql_alpha_prime_loss", alpha_prime_loss.item())
         return sum(alpha_prime.detach() * (term - self.cql_target_action_gap) for term in terms)
-
-    @classmethod
-    def load(cls, path, env=None, device="auto", custom_objects=None, print_system_info=False, force_reset=True, **kwargs):
-        """SB3's ``load``, without the training data: the replay buffer holds one transition (unless ``buffer_size``
-        is given), so a loaded model predicts without allocating the training buffer. ``model.dataset`` still names
-        a dataset given by id; ``model.replay_buffer = fill_replay_buffer(...)`` (or ``load_replay_buffer``) to
-        train on."""
-        kwargs.setdefault("buffer_size", 1)
-        kwargs["_fill_on_setup"] = False
-        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
-
-    def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "actor_lr_schedule", "_fill_on_setup"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

@@ -1,5 +1,5 @@
-"""What the package adds to RL-Zoo3: ``cql`` in ``ALGOS``, the Panda tasks, the CQL search space, and our
-``hyperparams/`` files as the default config of our algorithm and tasks.
+"""What the package adds to RL-Zoo3: ``cql`` and ``bc`` in ``ALGOS``, the Panda tasks, the CQL search space, and our
+``hyperparams/`` files as the default config of our algorithms and tasks.
 
 :func:`extend` is called by :mod:`sb3_cql.zoo.hook` right after each zoo module in ``hook.TRIGGERS`` is imported;
 ``import sb3_cql.zoo.plugin`` extends whichever of them are already loaded and installs the hook for the others.
@@ -14,8 +14,10 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-#: The algorithm the package adds to the zoo.
+#: The algorithm the package adds to the zoo, with its search space.
 ALGO = "cql"
+#: Every algorithm the package adds: our config file is their default config on any env.
+ALGOS = (ALGO, "bc")
 #: ``train.py``'s defaults of ``--eval-freq`` and ``--eval-episodes``: a config's ``eval_freq`` / ``n_eval_episodes``
 #: replace them, a value given on the command line (any other value) wins over the config.
 ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
@@ -31,13 +33,13 @@ def hyperparams_dir() -> Path:
 
 
 def config_file(algo: str, env_id: str) -> Path | None:
-    """Our config for ``algo`` on ``env_id``: always for ``cql``, for other algorithms when our file has the env."""
+    """Our config for ``algo`` on ``env_id``: always for our algorithms, for others when our file has the env."""
     import yaml
 
     path = hyperparams_dir() / f"{algo}.yml"
     if not path.is_file():
         return None
-    if algo == ALGO:
+    if algo in ALGOS:
         return path
     with open(path) as file:
         return path if env_id in (yaml.safe_load(file) or {}) else None
@@ -53,9 +55,11 @@ def extend(module: ModuleType) -> None:
 
 def _extend_utils(utils: ModuleType) -> None:
     import envs  # noqa: F401  (registers the tasks' gymnasium ids)
+    from sb3_cql.bc import BC
     from sb3_cql.cql import CQL
 
     utils.ALGOS.setdefault(ALGO, CQL)
+    utils.ALGOS.setdefault("bc", BC)
 
 
 def _extend_hyperparams_opt(hyperparams_opt: ModuleType) -> None:

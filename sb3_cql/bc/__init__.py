@@ -1,0 +1,3 @@
+from sb3_cql.bc.bc import BC
+
+__all__ = ["BC"]

@@ -1,0 +1,100 @@
+"""Behaviour cloning: the actor of SAC regressed on a dataset's actions, the baseline of offline RL on expert data."""
+
+from __future__ import annotations
+
+from typing import Any, TypeVar
+
+import numpy as np
+import torch as th
+from minari import MinariDataset
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import update_learning_rate
+
+from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
+
+SelfBC = TypeVar("SelfBC", bound="BC")
+
+
+class BC(OfflineSAC):
+    """Behaviour cloning: SAC's actor trained to reproduce the dataset's actions (mean squared error of its
+    deterministic action, :func:`~sb3_cql.common.behaviour_cloning_loss`), offline and with no critic update.
+
+    The model is a SAC model in every other respect (policy, ``predict``, ``save``/``load``, observation
+    normalisation from the dataset), so anything that evaluates or loads a SAC or CQL model takes it; its critics
+    stay untrained. ``BC("MlpPolicy", env, dataset="sb3cql/Panda-v0/pid-v0").learn(20_000)``.
+
+    :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
+    :param env: the environment (for its spaces, and the default evaluation env).
+    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer`` (see :class:`~sb3_cql.common.OfflineSAC`).
+    :param learning_rate: learning rate of the actor.
+    :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
+    :param batch_size: minibatch size of each gradient step.
+    :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param tensorboard_log: TensorBoard log folder.
+    :param policy_kwargs: keywords of the policy (``net_arch``, ...).
+    :param verbose: 0 silent, 1 training logs, 2 debug.
+    :param seed: seed of the random generators.
+    :param device: torch device.
+    :param _init_setup_model: build the networks now.
+    """
+
+    def __init__(
+        self,
+        policy: str | type[BasePolicy],
+        env: GymEnv | str,
+        dataset: MinariDataset | str | ReplayBuffer | None = None,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 2_000_000,
+        batch_size: int = 256,
+        normalize_observations: bool = True,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        super().__init__(
+            policy,
+            env,
+            dataset=dataset,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            normalize_observations=normalize_observations,
+            policy_kwargs=policy_kwargs,
+            batch_size=batch_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
+
+    def learn(
+        self: SelfBC,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1000,
+        tb_log_name: str = "BC",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfBC:
+        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
+
+    def train(self, gradient_steps: int, batch_size: int = 256) -> None:
+        """``gradient_steps`` Adam steps on the behaviour-cloning loss of the actor."""
+        self.policy.set_training_mode(True)
+        update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
+        losses = []
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            loss = behaviour_cloning_loss(self.actor, data.observations, data.actions)
+            self.actor.optimizer.zero_grad()
+            loss.backward()
+            self.actor.optimizer.step()
+            losses.append(loss.item())
+            self._n_updates += 1
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/actor_loss", float(np.mean(losses)))

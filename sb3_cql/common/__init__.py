@@ -1,0 +1,5 @@
+"""What the offline algorithms share: SAC's networks trained from a dataset instead of an env."""
+
+from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
+
+__all__ = ["OfflineSAC", "behaviour_cloning_loss"]

@@ -1,0 +1,179 @@
+"""SAC's networks and replay buffer trained offline, from a dataset: the base of :class:`~sb3_cql.CQL` and
+:class:`~sb3_cql.BC`."""
+
+from __future__ import annotations
+
+import time
+from typing import Any, ClassVar, TypeVar
+
+import torch as th
+from minari import MinariDataset
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import FloatSchedule
+from stable_baselines3.sac.policies import Actor
+from torch.nn import functional as F
+
+from sb3_cql.common.allocator import retain_freed_memory
+from sb3_cql.common.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
+from sb3_cql.data import ensure_dataset, fill_replay_buffer
+
+SelfOfflineSAC = TypeVar("SelfOfflineSAC", bound="OfflineSAC")
+
+
+def behaviour_cloning_loss(actor: Actor, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
+    """Mean squared error between the actor's deterministic actions and ``actions`` (both in [-1, 1])."""
+    return F.mse_loss(actor(observations, deterministic=True), actions)
+
+
+class OfflineSAC(SAC):
+    """SAC's policies (actor, twin critics) and ``ReplayBuffer``, with the buffer filled from a dataset and
+    :meth:`learn` making one gradient step per timestep without ever stepping the env (it gives the spaces;
+    callbacks such as ``EvalCallback`` use their own envs). Subclasses write :meth:`train`.
+
+    Observations are z-scored with the dataset's statistics (``normalize_observations``) inside the policy, so
+    ``predict`` applies the same normalisation after ``save``/``load``. :meth:`load` does not reload the data: a
+    loaded model predicts with a one-transition buffer, and refills it from its dataset id when it trains again.
+
+    :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
+    :param env: the environment (for its spaces, and the default evaluation env).
+    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
+        ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`). A missing standard
+        id (``sb3cql/Panda-v0/pid-v0``, ...) is collected first (:func:`sb3_cql.data.ensure_dataset`).
+    :param learning_rate: learning rate of the critics and the entropy coefficient.
+    :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
+    :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
+    :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``policy_kwargs``, ``seed``, ...).
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "CnnPolicy": CnnPolicy,
+        "MultiInputPolicy": MultiInputPolicy,
+    }
+
+    def __init__(
+        self,
+        policy: str | type[BasePolicy],
+        env: GymEnv | str,
+        dataset: MinariDataset | str | ReplayBuffer | None = None,
+        learning_rate: float | Schedule = 3e-4,
+        actor_learning_rate: float | Schedule | None = None,
+        buffer_size: int = 2_000_000,
+        normalize_observations: bool = True,
+        policy_kwargs: dict[str, Any] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self.dataset = dataset
+        self.actor_learning_rate = actor_learning_rate
+        self.normalize_observations = normalize_observations
+        self._fill_on_setup = True  # load() turns it off: a loaded model does not reload its data
+        policy_kwargs = dict(policy_kwargs or {})
+        if normalize_observations and policy in ("MlpPolicy", MlpPolicy):
+            policy_kwargs.setdefault("features_extractor_class", NormalizedFlatten)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            # The dataset's own buffer replaces SB3's: allocate nothing here.
+            buffer_size=1 if dataset is not None else buffer_size,
+            learning_starts=0,
+            policy_kwargs=policy_kwargs,
+            **kwargs,
+        )
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
+        self.actor_lr_schedule = FloatSchedule(rate)
+        if self.dataset is not None and self._fill_on_setup:
+            self._fill_from_dataset(self.dataset)
+            self.dataset = self.dataset if isinstance(self.dataset, str) else None  # never pickle data into a model
+
+    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        if isinstance(dataset, ReplayBuffer):
+            if dataset.obs_shape != self.observation_space.shape or dataset.action_dim != self.action_space.shape[0]:
+                raise ValueError(
+                    f"the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) do not "
+                    f"match the env's {self.observation_space.shape} and {self.action_space.shape}"
+                )
+            self.replay_buffer = dataset
+        else:
+            if isinstance(dataset, str):
+                dataset = ensure_dataset(dataset)
+            self.replay_buffer = fill_replay_buffer(dataset, self.observation_space, self.action_space, device=self.device)
+        size = self.replay_buffer.size()
+        if size == 0:
+            raise ValueError("the dataset holds no transitions")
+        if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
+            observations = self.replay_buffer.observations[:size].reshape(size, -1)
+            mean, std = observations.mean(axis=0), observations.std(axis=0)
+            for module in (self.actor, self.critic, self.critic_target):
+                module.features_extractor.set_statistics(mean, std)
+
+    def learn(
+        self: SelfOfflineSAC,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1000,
+        tb_log_name: str = "run",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfOfflineSAC:
+        """Make ``total_timesteps`` gradient steps on the replay buffer, calling the callbacks after each one.
+
+        :param total_timesteps: gradient steps.
+        :param callback: SB3 callback(s), called once per gradient step.
+        :param log_interval: gradient steps between two dumps of the logs.
+        :param tb_log_name: name of the TensorBoard run.
+        :param reset_num_timesteps: count from 0 (else continue the count of a previous ``learn``).
+        :param progress_bar: show a progress bar of the gradient steps.
+        """
+        too_few = self.replay_buffer is None or self.replay_buffer.size() < self.batch_size
+        if too_few and isinstance(self.dataset, str):  # a loaded model trains on its dataset again
+            self._fill_from_dataset(self.dataset)
+        if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
+            size = 0 if self.replay_buffer is None else self.replay_buffer.size()
+            raise ValueError(f"offline training needs batch_size={self.batch_size} transitions or more, the buffer has {size}")
+        # CPU torch slows down by 40x on denormal floats, which near-converged networks produce.
+        th.set_flush_denormal(True)
+        # Each step allocates and frees ~11 MB activations: keep that memory instead of page-faulting it back in.
+        retain_freed_memory()
+        total_timesteps, callback = self._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        callback.on_training_start(locals(), globals())
+        while self.num_timesteps < total_timesteps:
+            self.train(gradient_steps=1, batch_size=self.batch_size)
+            self.num_timesteps += 1
+            self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
+            callback.update_locals(locals())
+            if not callback.on_step():
+                break
+            if log_interval > 0 and self.num_timesteps % log_interval == 0:
+                self._dump_offline_logs()
+        callback.on_training_end()
+        return self
+
+    def _dump_offline_logs(self) -> None:
+        elapsed = max(time.time_ns() - self.start_time, 1) / 1e9
+        steps = self.num_timesteps - self._num_timesteps_at_start
+        self.logger.record("time/gradient_steps_per_s", int(steps / elapsed))
+        self.logger.record("time/time_elapsed", int(elapsed), exclude="tensorboard")
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        self.logger.dump(step=self.num_timesteps)
+
+    @classmethod
+    def load(cls, path, env=None, device="auto", custom_objects=None, print_system_info=False, force_reset=True, **kwargs):
+        """SB3's ``load``, without the training data: the replay buffer holds one transition (unless ``buffer_size``
+        is given), so a loaded model predicts without allocating the training buffer. :meth:`learn` refills it from
+        ``model.dataset`` when that names a dataset (or set ``model.replay_buffer`` by hand first)."""
+        kwargs.setdefault("buffer_size", 1)
+        kwargs["_fill_on_setup"] = False
+        return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "actor_lr_schedule", "_fill_on_setup"]
