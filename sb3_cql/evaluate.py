@@ -2,6 +2,7 @@
 
     python -m sb3_cql.evaluate logs/cql/Panda-v0_1/best_model.zip --algo cql -n 100 --seed 0
     python -m sb3_cql.evaluate pid --env Panda-v0 PandaForce-v0 -n 100
+    python -m sb3_cql.evaluate logs/bc/Panda-v0_1/best_model.zip --algo bc --env-kwargs action_mode:"'delta'"
 
 ``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...) or ``pid`` for the PD controller.
 Episodes are deterministic given ``--seed``: the env is reset with it once, and its own generator seeds the rest.
@@ -14,6 +15,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from rl_zoo3.utils import StoreDict
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -22,7 +24,14 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import envs
 
 
-def success_rate(policy: Any, env_id: str, n_episodes: int = 100, seed: int = 0, deterministic: bool = True) -> float:
+def success_rate(
+    policy: Any,
+    env_id: str,
+    n_episodes: int = 100,
+    seed: int = 0,
+    deterministic: bool = True,
+    env_kwargs: dict[str, Any] | None = None,
+) -> float:
     """Fraction of ``n_episodes`` episodes of ``env_id`` that ``policy`` (anything with SB3's ``predict``) succeeds in.
 
     :param policy: an SB3 model or :class:`envs.PDController`.
@@ -30,8 +39,9 @@ def success_rate(policy: Any, env_id: str, n_episodes: int = 100, seed: int = 0,
     :param n_episodes: episodes.
     :param seed: seed of the env's first reset.
     :param deterministic: use the policy's deterministic actions.
+    :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
     """
-    env = DummyVecEnv([lambda: Monitor(gym.make(env_id))])
+    env = DummyVecEnv([lambda: Monitor(gym.make(env_id, **(env_kwargs or {})))])
     env.seed(seed)
     successes: list[bool] = []
 
@@ -44,10 +54,11 @@ def success_rate(policy: Any, env_id: str, n_episodes: int = 100, seed: int = 0,
     return float(np.mean(successes))
 
 
-def load_policy(model: str, algo: str | None, env_id: str) -> Any:
-    """The PD controller for ``pid``, else the SB3 model saved at ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
+def load_policy(model: str, algo: str | None, env_id: str, env_kwargs: dict[str, Any] | None = None) -> Any:
+    """The PD controller for ``pid`` (for ``env_id`` made with ``env_kwargs``), else the SB3 model saved at
+    ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
     if model == "pid":
-        env = gym.make(env_id)
+        env = gym.make(env_id, **(env_kwargs or {}))
         controller = envs.PDController.for_env(env)
         env.close()
         return controller
@@ -72,11 +83,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("-n", "--n-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic ones")
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, default={},
+                        help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (the model's action mode)")  # fmt: skip
     args = parser.parse_args(argv)
     model = None if args.model == "pid" else load_policy(args.model, args.algo, args.env[0])  # loaded once
     for env_id in args.env:
-        policy = model if model is not None else load_policy(args.model, args.algo, env_id)  # PD: one per task
-        rate = success_rate(policy, env_id, args.n_episodes, args.seed, deterministic=not args.stochastic)
+        policy = (
+            model if model is not None else load_policy(args.model, args.algo, env_id, args.env_kwargs)
+        )  # PD: one per task
+        rate = success_rate(policy, env_id, args.n_episodes, args.seed, not args.stochastic, args.env_kwargs)
         print(f"{env_id}: success rate {rate:.3f} over {args.n_episodes} episodes (seed {args.seed})")
 
 

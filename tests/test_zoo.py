@@ -30,7 +30,7 @@ class Zoo:
         return result.stdout
 
     def python(self, code: str) -> str:
-        return self.run("-c", code, module=None).strip().splitlines()[-1]
+        return self.run(sys.executable, "-c", code, module=None).strip().splitlines()[-1]
 
 
 @pytest.fixture(scope="module")
@@ -107,6 +107,32 @@ def test_evaluation_settings_come_from_the_config(zoo):
             "eval_freq:75", "n_eval_episodes:1")  # fmt: skip
     evaluations = np.load(zoo.root / "config-eval" / "cql" / "Panda-v0_1" / "evaluations.npz")
     assert evaluations["timesteps"].tolist() == [75, 150] and evaluations["results"].shape == (2, 1)
+    # A command-line value wins over the config even when it is the zoo's default (5 episodes).
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "75", "-f", "explicit-eval", *TINY, "eval_freq:75",
+            "n_eval_episodes:1", "--eval-episodes", "5")  # fmt: skip
+    evaluations = np.load(zoo.root / "explicit-eval" / "cql" / "Panda-v0_1" / "evaluations.npz")
+    assert evaluations["results"].shape == (1, 5)
+
+
+def test_env_kwargs_of_the_config_reach_the_evaluation_env(zoo):
+    zoo.run("collect", "--episodes", "2", "--action-mode", "delta", module="sb3_cql.data")  # sb3cql/Panda-v0/pid-delta-v0
+    (zoo.root / "delta.yml").write_text(
+        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 4\n  dataset: sb3cql/Panda-v0/pid-delta-v0\n  env_kwargs:\n    action_mode: delta\n"
+        "  batch_size: 16\n  policy_kwargs: 'dict(net_arch=[8])'\n"
+    )
+    # Record the action bound of the training and evaluation envs the zoo makes (1 in delta mode, the joint limits else).
+    code = (
+        "import sys; from rl_zoo3 import train; from rl_zoo3.exp_manager import ExperimentManager; bounds = {}\n"
+        "create = ExperimentManager.create_envs\n"
+        "def recording(self, n_envs, eval_env=False, no_log=False):\n"
+        "    envs = create(self, n_envs, eval_env, no_log); bounds[eval_env] = float(envs.action_space.high.max())\n"
+        "    return envs\n"
+        "ExperimentManager.create_envs = recording\n"
+        "sys.argv = ['train', '--algo', 'cql', '--env', 'Panda-v0', '-n', '4', '--eval-freq', '2', '--eval-episodes', '1',"
+        " '-f', 'delta', '--conf-file', 'delta.yml']\n"
+        "train.train(); print(sorted(bounds.items()))"
+    )
+    assert zoo.python(code) == "[(False, 1.0), (True, 1.0)]"
 
 
 def test_console_script_with_an_explicit_config_file(zoo):
@@ -177,3 +203,12 @@ def test_evaluation_is_deterministic_given_the_seed():
     assert success_rate(controller, "Panda-v0", n_episodes=2, seed=0) == 1.0
     with pytest.raises(ValueError, match="unknown algo"):
         load_policy("model.zip", "nothing", "Panda-v0")
+
+
+def test_the_pd_controller_is_evaluated_in_the_action_mode_given(capsys):
+    from sb3_cql.evaluate import main
+
+    main(["pid", "--env", "Panda-v0", "-n", "2", "--env-kwargs", "action_mode:'delta'"])
+    assert "Panda-v0: success rate 1.000 over 2 episodes" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="action_mode"):
+        main(["pid", "--env", "Panda-v0", "-n", "1", "--env-kwargs", "action_mode:'velocity'"])

@@ -14,7 +14,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
+from sb3_cql.common import OfflineSAC
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 
 SelfCQL = TypeVar("SelfCQL", bound="CQL")
@@ -69,9 +69,8 @@ class CQL(OfflineSAC):
     :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
-    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning (mean squared error of its
-        deterministic actions to the data actions, :func:`~sb3_cql.common.behaviour_cloning_loss`) instead of the
-        Q-value; the critics train as usual meanwhile.
+    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning (log-likelihood of the data
+        actions in place of the Q-value, next to the entropy term); the critics train as usual meanwhile.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
@@ -205,8 +204,13 @@ class CQL(OfflineSAC):
             self.critic.optimizer.step()
 
             if self.num_timesteps < self.bc_steps:
-                # Behaviour-cloning warm start: the actor imitates the data actions (as sb3_cql.BC does).
-                actor_loss = behaviour_cloning_loss(self.actor, data.observations, data.actions)
+                # Behaviour-cloning warm start (as the CQL paper's code): SAC's actor loss with the data actions'
+                # log-likelihood in place of Q. The likelihood also fits the policy's spread to the data's, which keeps
+                # its samples (backed up, and pushed down by the conservative term) near the data.
+                mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
+                distribution = self.actor.action_dist.proba_distribution(mean_actions, log_std, **kwargs)
+                data_actions = data.actions.clamp(-1 + 1e-6, 1 - 1e-6)
+                actor_loss = (ent_coef * log_prob - distribution.log_prob(data_actions).reshape(-1, 1)).mean()
             else:
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)

@@ -19,7 +19,7 @@ ALGO = "cql"
 #: Every algorithm the package adds: our config file is their default config on any env.
 ALGOS = (ALGO, "bc")
 #: ``train.py``'s defaults of ``--eval-freq`` and ``--eval-episodes``: a config's ``eval_freq`` / ``n_eval_episodes``
-#: replace them, a value given on the command line (any other value) wins over the config.
+#: replace them; a value given on the command line (or any other value) wins over the config.
 ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
 
 
@@ -69,6 +69,12 @@ def _extend_hyperparams_opt(hyperparams_opt: ModuleType) -> None:
     hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(ALGO, convert_cql_params)
 
 
+def _left_at_default(option: str, value: Any, default: Any) -> bool:
+    """Whether the zoo's ``option`` has its default ``value`` and was not written on the command line (where a value
+    equal to the default is still the user's choice)."""
+    return value == default and not any(arg == option or arg.startswith(f"{option}=") for arg in sys.argv[1:])
+
+
 def _extend_exp_manager(exp_manager: ModuleType) -> None:
     manager = exp_manager.ExperimentManager
     init, preprocess = manager.__init__, manager._preprocess_hyperparams
@@ -86,11 +92,18 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
         # Evaluation settings in a config: the zoo has command-line flags for them only.
         eval_freq, n_eval_episodes = hyperparams.pop("eval_freq", None), hyperparams.pop("n_eval_episodes", None)
-        if eval_freq is not None and self.eval_freq == ZOO_DEFAULT_EVAL_FREQ:
+        if eval_freq is not None and _left_at_default("--eval-freq", self.eval_freq, ZOO_DEFAULT_EVAL_FREQ):
             self.eval_freq = int(eval_freq)
-        if n_eval_episodes is not None and self.n_eval_episodes == ZOO_DEFAULT_EVAL_EPISODES:
+        if n_eval_episodes is not None and _left_at_default(
+            "--eval-episodes", self.n_eval_episodes, ZOO_DEFAULT_EVAL_EPISODES
+        ):
             self.n_eval_episodes = int(n_eval_episodes)
-        return preprocess(self, hyperparams)
+        result = preprocess(self, hyperparams)
+        if self._eval_env_kwargs_args is None:
+            # The zoo gives a config's env_kwargs to the training env only (it copied the empty command-line value
+            # to the evaluation env before reading the config): evaluate in the env trained in (e.g. its action mode).
+            self.eval_env_kwargs = self.env_kwargs
+        return result
 
     manager.__init__ = __init__
     manager._preprocess_hyperparams = _preprocess_hyperparams

@@ -1,0 +1,204 @@
+"""The thesis's figures from the protocol's results folder (matplotlib, Agg, PNG):
+
+- ``training_success.png``: evaluation success rate during training, mean and 95% CI across seeds (figure 5.1);
+- ``training_losses.png``: policy loss and CQL's Q predictions on the data during training (figure 5.2);
+- ``final_success.png``: final success rate per task and algorithm, seeds as dots (figure 5.3);
+- ``filmstrip_<task>.png``: frames of one episode of each policy (figure 5.6).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from sb3_cql.benchmark.records import ResultsFolder  # noqa: E402
+from sb3_cql.benchmark.report import algo_order  # noqa: E402
+from sb3_cql.benchmark.runs import Run  # noqa: E402
+
+#: TensorBoard tags of figure 5.2: the policy loss (every algorithm) and the Q predictions on the data (CQL).
+LOSS_TAGS = {"train/actor_loss": "policy loss", "train/cql_q_data": "Q(s, a) on the data"}
+#: Frames of a filmstrip, evenly spaced from the first to the last step of the episode.
+FILMSTRIP_FRAMES = 6
+DPI = 120
+
+
+def mean_ci95(curves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean over the rows of ``curves`` (seeds x points) and the half-width of its Student-t 95% CI (0 for 1 seed)."""
+    mean = curves.mean(axis=0)
+    if len(curves) < 2:
+        return mean, np.zeros_like(mean)
+    return mean, stats.t.ppf(0.975, len(curves) - 1) * curves.std(axis=0, ddof=1) / np.sqrt(len(curves))
+
+
+def _on_common_steps(series: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """The steps every seed has, and the seeds' values there (seeds x steps)."""
+    common = series[0][0]
+    for steps, _ in series[1:]:
+        common = np.intersect1d(common, steps)
+    rows = [dict(zip(steps.tolist(), values.tolist(), strict=True)) for steps, values in series]
+    return common, np.array([[row[step] for step in common.tolist()] for row in rows]).reshape(len(rows), len(common))
+
+
+def _runs(results: ResultsFolder, training: list[dict[str, Any]]) -> dict[str, list[Run]]:
+    runs: dict[str, list[Run]] = {}
+    for record in training:
+        run = Run.read(results.run_dir(record["seed"]) / record["algo"], record["train_env"])
+        runs.setdefault(record["algo"], []).append(run)
+    return {algo: runs[algo] for algo in algo_order(runs)}
+
+
+def _band(axis: plt.Axes, steps: np.ndarray, curves: np.ndarray, label: str) -> None:
+    mean, half = mean_ci95(curves)
+    (line,) = axis.plot(steps, mean, label=f"{label} ({len(curves)} seeds)")
+    axis.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.25)
+
+
+def training_success(results: ResultsFolder, runs: dict[str, list[Run]], pid_rate: float | None, path: Path) -> None:
+    """Figure 5.1 from the runs' stitched evaluations."""
+    figure, axis = plt.subplots(figsize=(7, 4))
+    for algo, algo_runs in runs.items():
+        series = [run.evaluations() for run in algo_runs if len(run.evaluations()[0])]
+        if series:
+            steps, curves = _on_common_steps(series)
+            _band(axis, steps, curves, algo.upper())
+    if pid_rate is not None:
+        axis.axhline(pid_rate, color="black", linestyle="--", label="PID (final evaluation)")
+    axis.set(xlabel="training step", ylabel="evaluation success rate", ylim=(-0.05, 1.05), title="Panda-v0, during training")
+    axis.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def training_losses(runs: dict[str, list[Run]], path: Path) -> None:
+    """Figure 5.2 from the runs' TensorBoard logs."""
+    figure, axes = plt.subplots(1, len(LOSS_TAGS), figsize=(6 * len(LOSS_TAGS), 4))
+    for axis, (tag, label) in zip(axes, LOSS_TAGS.items(), strict=True):
+        for algo, algo_runs in runs.items():
+            series = [scalars for scalars in (run.scalars(tag) for run in algo_runs) if len(scalars[0])]
+            if series:
+                steps, curves = _on_common_steps(series)
+                _band(axis, steps, curves, algo.upper())
+        axis.set(xlabel="training step", ylabel=label, title=tag)
+        if axis.has_data():
+            axis.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def final_success(summary: dict[str, dict[str, Any]], evaluations: list[dict[str, Any]], tasks: list[str], path: Path) -> None:
+    """Figure 5.3: bars of the mean over seeds with its 95% CI, one dot per seed."""
+    figure, axis = plt.subplots(figsize=(8, 4))
+    algos = list(summary)
+    width = 0.8 / max(len(algos), 1)
+    rng = np.random.default_rng(0)  # dot jitter only
+    for index, algo in enumerate(algos):
+        positions = np.arange(len(tasks)) + (index - (len(algos) - 1) / 2) * width
+        means = [summary[algo][task]["mean"] for task in tasks]
+        bars = axis.bar(positions, means, width=width * 0.9, label=algo.upper(), alpha=0.7)
+        for position, task in zip(positions, tasks, strict=True):
+            rates = [r["success_rate"] for r in evaluations if r["algo"] == algo and r["task"] == task]
+            mean, half = mean_ci95(np.array(rates).reshape(-1, 1))
+            axis.errorbar(position, mean, yerr=half, color="black", capsize=3)
+            jitter = rng.uniform(-width / 4, width / 4, len(rates))
+            axis.scatter(position + jitter, rates, color=bars.patches[0].get_facecolor(), edgecolor="black", zorder=3, s=16)
+    axis.set_xticks(np.arange(len(tasks)), tasks)
+    axis.set(ylabel="success rate", ylim=(-0.05, 1.05), title="Final evaluation of the best models")
+    axis.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def episode_frames(
+    policy: Any, env_id: str, seed: int, env_kwargs: dict[str, Any], n_frames: int = FILMSTRIP_FRAMES
+) -> tuple[list[np.ndarray], list[int]]:
+    """``n_frames`` frames evenly spaced over one deterministic episode of ``policy`` (reset with ``seed``), and their
+    steps. The episode is played twice, since it is bit-identical given the seed: once for its length, once to
+    render only the chosen steps."""
+    import gymnasium as gym
+
+    def play(render_at: set[int] | None) -> tuple[int, list[np.ndarray]]:
+        env = gym.make(env_id, render_mode="rgb_array", **env_kwargs)
+        observation, _ = env.reset(seed=seed)
+        frames, step, done = [], 0, False
+        while True:
+            if render_at is not None and step in render_at:
+                frames.append(env.render())
+            if done:
+                break
+            action, _ = policy.predict(observation, deterministic=True)
+            observation, _, terminated, truncated, _ = env.step(action)
+            done, step = terminated or truncated, step + 1
+        env.close()
+        return step, frames
+
+    length, _ = play(None)
+    steps = sorted({int(round(step)) for step in np.linspace(0, length, n_frames)})
+    return play(set(steps))[1], steps
+
+
+def filmstrip(policies: dict[str, tuple[Any, dict[str, Any]]], env_id: str, seed: int, path: Path) -> None:
+    """Figure 5.6 for ``env_id``: one row of frames per policy (given with the env keywords it acts in)."""
+    rows = {name: episode_frames(policy, env_id, seed, env_kwargs) for name, (policy, env_kwargs) in policies.items()}
+    n_columns = max(len(frames) for frames, _ in rows.values())
+    figure, axes = plt.subplots(len(rows), n_columns, figsize=(2.4 * n_columns, 1.9 * len(rows)), squeeze=False)
+    for row, (name, (frames, steps)) in zip(axes, rows.items(), strict=True):
+        for column, axis in enumerate(row):
+            axis.axis("off")
+            if column < len(frames):
+                axis.imshow(frames[column])
+                axis.set_title(f"step {steps[column]}", fontsize=8)
+        row[0].text(-0.05, 0.5, name, transform=row[0].transAxes, ha="right", va="center", fontsize=10)
+    figure.suptitle(f"{env_id}, episode seed {seed}")
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def make_figures(results: ResultsFolder, report: dict[str, Any], filmstrips: bool = True) -> list[Path]:
+    """Every figure of the module docstring from ``report`` (:func:`~sb3_cql.benchmark.report.make_report`) and the
+    runs on disk; filmstrips show the best model of each algorithm's smallest seed, in an episode reset with the
+    smallest seed. Return the files written."""
+    from sb3_cql.evaluate import load_policy
+
+    results.figures.mkdir(parents=True, exist_ok=True)
+    tasks, summary, training = report["tasks"], report["summary"], report["training"]
+    written = []
+    runs = _runs(results, training)
+    if runs:
+        pid = summary.get("pid", {}).get(report["train_env"])
+        written.append(results.figures / "training_success.png")
+        training_success(results, runs, None if pid is None else pid["mean"], written[-1])
+        written.append(results.figures / "training_losses.png")
+        training_losses(runs, written[-1])
+    if summary:
+        written.append(results.figures / "final_success.png")
+        final_success(summary, report["evaluations"], tasks, written[-1])
+    if filmstrips:
+        first_runs = {}
+        for record in sorted(training, key=lambda r: r["seed"]):
+            first_runs.setdefault(record["algo"], record)
+        for task in tasks:
+            policies = {}
+            for algo in algo_order([*first_runs, *summary]):
+                if algo == "pid":
+                    policies["PID"] = load_policy("pid", None, task), {}
+                elif algo in first_runs:
+                    record = first_runs[algo]
+                    model = load_policy(str(results.root / record["best_model"]), algo, task)
+                    policies[algo.upper()] = model, record.get("env_kwargs", {})
+            seeds = [record["seed"] for record in [*training, *report["evaluations"]]]
+            if policies and seeds:
+                seed = min(seeds)
+                written.append(results.figures / f"filmstrip_{task}.png")
+                filmstrip(policies, task, seed, written[-1])
+    return written

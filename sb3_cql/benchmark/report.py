@@ -1,0 +1,146 @@
+"""The protocol's numbers from its records: ``results.json``, ``results.csv`` and ``table.md`` (thesis Table 5.1:
+mean ± standard deviation over seeds, and the interquartile mean with 95% stratified-bootstrap confidence
+intervals from rliable)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import warnings
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from sb3_cql.benchmark.records import ResultsFolder, read_json, write_json, write_text
+
+#: Rows of the table in the thesis's order (then any other algorithm), and how they are printed.
+ROW_ORDER = ("cql", "bc", "pid", "sac")
+#: Bootstrap resamples of the interval estimates; the generator's seed, so a report is made again identically.
+BOOTSTRAP_REPS, BOOTSTRAP_SEED = 2000, 0
+#: Columns of ``results.csv``: one row per final evaluation, with the run and the machine.
+CSV_COLUMNS = ("algo", "seed", "task", "success_rate", "episodes", "best_step", "training_steps", "train_wall_time_s",
+               "eval_wall_time_s", "commit", "cpu_model", "cpu_count", "torch", "stable-baselines3")  # fmt: skip
+
+
+def algo_rank(algo: str) -> tuple[int, str]:
+    """Sort key of the table's rows."""
+    return (ROW_ORDER.index(algo) if algo in ROW_ORDER else len(ROW_ORDER), algo)
+
+
+def algo_order(algos: Iterable[str]) -> list[str]:
+    """``algos`` in the table's order."""
+    return sorted(set(algos), key=algo_rank)
+
+
+def success_matrix(evaluations: list[dict[str, Any]], tasks: list[str]) -> dict[str, tuple[list[int], np.ndarray]]:
+    """Per algorithm, the seeds evaluated on every task in ``tasks`` and their success rates (seeds x tasks)."""
+    rates: dict[str, dict[int, dict[str, float]]] = {}
+    for record in evaluations:
+        rates.setdefault(record["algo"], {}).setdefault(record["seed"], {})[record["task"]] = record["success_rate"]
+    matrices = {}
+    for algo in algo_order(rates):
+        seeds = sorted(seed for seed, by_task in rates[algo].items() if all(task in by_task for task in tasks))
+        if seeds:
+            matrices[algo] = (seeds, np.array([[rates[algo][seed][task] for task in tasks] for seed in seeds]))
+    return matrices
+
+
+def summarise(matrices: dict[str, tuple[list[int], np.ndarray]], tasks: list[str]) -> dict[str, dict[str, Any]]:
+    """Mean, standard deviation (n - 1, as the thesis's table), IQM and its 95% CI per algorithm and task."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    def iqm_per_task(scores: np.ndarray) -> np.ndarray:
+        return np.array([metrics.aggregate_iqm(scores[:, column]) for column in range(scores.shape[1])])
+
+    score_dict = {algo: matrix for algo, (_, matrix) in matrices.items()}
+    with warnings.catch_warnings():  # rliable hands arch a RandomState, which arch deprecates
+        warnings.simplefilter("ignore", FutureWarning)
+        iqm, intervals = rly.get_interval_estimates(
+            score_dict, iqm_per_task, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED)
+        )
+    summary: dict[str, dict[str, Any]] = {}
+    for algo, (seeds, matrix) in matrices.items():
+        std = matrix.std(axis=0, ddof=1) if len(seeds) > 1 else np.full(len(tasks), np.nan)
+        summary[algo] = {
+            task: {
+                "mean": float(matrix[:, column].mean()),
+                "std": None if np.isnan(std[column]) else float(std[column]),
+                "iqm": float(iqm[algo][column]),
+                "iqm_ci95": [float(intervals[algo][0, column]), float(intervals[algo][1, column])],
+                "seeds": seeds,
+            }
+            for column, task in enumerate(tasks)
+        }
+    return summary
+
+
+def markdown_table(summary: dict[str, dict[str, Any]], tasks: list[str], episodes: int) -> str:
+    """Table 5.1 (mean ± std over seeds) and the IQM table, best mean of each task in bold."""
+    best = {task: max((summary[algo][task]["mean"] for algo in summary), default=None) for task in tasks}
+    header = "| | " + " | ".join(tasks) + " |\n|---|" + "---|" * len(tasks) + "\n"
+    seeds = sorted({len(summary[algo][task]["seeds"]) for algo in summary for task in tasks})
+    lines = [
+        f"Success rate of the best model of each run (PID: the PD controller) over {episodes} episodes per task, "
+        f"mean ± standard deviation over seeds (seeds per row: {'/'.join(map(str, seeds)) or 0}).",
+        "",
+        header.rstrip("\n"),
+    ]
+    for algo in summary:
+        cells = []
+        for task in tasks:
+            entry = summary[algo][task]
+            std = "n/a" if entry["std"] is None else f"{entry['std']:.3f}"
+            cell = f"{entry['mean']:.3f} ± {std}"
+            cells.append(f"**{cell}**" if entry["mean"] == best[task] else cell)
+        lines.append(f"| {algo.upper()} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"Interquartile mean over seeds [95% stratified-bootstrap confidence interval, {BOOTSTRAP_REPS} resamples, rliable].",
+        "",
+        header.rstrip("\n"),
+    ]
+    for algo in summary:
+        cells = [
+            f"{summary[algo][task]['iqm']:.3f} [{summary[algo][task]['iqm_ci95'][0]:.3f}, "
+            f"{summary[algo][task]['iqm_ci95'][1]:.3f}]"
+            for task in tasks
+        ]
+        lines.append(f"| {algo.upper()} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def make_report(results: ResultsFolder, tasks: list[str]) -> dict[str, Any]:
+    """Write ``results.json``, ``results.csv`` and ``table.md`` from the records in ``results``; return the JSON."""
+    protocol = read_json(results.protocol) or {}
+    system = read_json(results.root / "system.json") or {}
+    training, evaluations = results.training_records(), results.evaluation_records()
+    matrices = success_matrix(evaluations, tasks)
+    summary = summarise(matrices, tasks) if matrices else {}
+    report = {
+        "settings": protocol.get("settings"),
+        "train_env": protocol.get("train_env"),
+        "tasks": tasks,
+        "system": system,
+        "summary": summary,
+        "training": training,
+        "evaluations": evaluations,
+    }
+    write_json(results.root / "results.json", report)
+    machine = {
+        "commit": system.get("commit"),
+        "cpu_model": system.get("cpu_model"),
+        "cpu_count": system.get("cpu_count"),
+        "torch": system.get("versions", {}).get("torch"),
+        "stable-baselines3": system.get("versions", {}).get("stable-baselines3"),
+    }
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+    writer.writeheader()
+    for record in sorted(evaluations, key=lambda r: (algo_rank(r["algo"]), r["seed"], r["task"])):
+        writer.writerow({**record, **machine})
+    write_text(results.root / "results.csv", buffer.getvalue())
+    episodes = (protocol.get("settings") or {}).get("episodes", 0)
+    write_text(results.root / "table.md", markdown_table(summary, tasks, episodes))
+    return report

@@ -1,0 +1,317 @@
+"""The protocol's units of work, each recorded on disk when done: train an algorithm with one seed (RL-Zoo3 in a
+subprocess, resumed from its last checkpoint after a kill), evaluate a policy on one task; and their scheduling
+over worker processes.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import multiprocessing
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import envs
+from sb3_cql.benchmark.records import ResultsFolder, read_json, system_info, write_json
+from sb3_cql.benchmark.runs import Run
+
+#: The task every algorithm trains on (thesis 4.3); the final evaluation covers all of ``envs.ENV_IDS``.
+TRAIN_ENV = "Panda-v0"
+#: The thesis's five seeds.
+THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
+#: The scripted PD controller: evaluated, never trained.
+SCRIPTED = "pid"
+#: Rows of the thesis's Table 5.1, and BC.
+DEFAULT_ALGOS = ("cql", "bc", SCRIPTED, "sac")
+#: Lines of a failed zoo run's log shown in the error.
+LOG_TAIL_LINES = 40
+
+
+class BenchmarkError(RuntimeError):
+    """A unit of the protocol failed, or the request cannot be run (unknown algorithm, other settings on disk)."""
+
+
+class UnitsFailed(BenchmarkError):
+    """Some units failed; the others are done and recorded."""
+
+
+@dataclass
+class Settings:
+    """What a results folder's numbers depend on: a re-run must use the same (see :meth:`check_folder`).
+
+    :param n_timesteps: training steps (the zoo's ``-n``); ``None``: each algorithm's config.
+    :param eval_freq: steps between evaluations during training (``--eval-freq``); ``None``: the config's.
+    :param eval_episodes: episodes of those evaluations (``--eval-episodes``); ``None``: the config's.
+    :param episodes: episodes of each final evaluation.
+    :param zoo_args: extra arguments of every ``rl_zoo3.train`` call.
+    """
+
+    n_timesteps: int | None = None
+    eval_freq: int | None = None
+    eval_episodes: int | None = None
+    episodes: int = 100
+    zoo_args: list[str] = field(default_factory=list)
+
+    def check_folder(self, results: ResultsFolder) -> None:
+        """Record these settings in a new results folder, or check they are those of an existing one."""
+        recorded = read_json(results.protocol)
+        if recorded is None:
+            write_json(results.protocol, {"settings": asdict(self), "train_env": TRAIN_ENV})
+        elif recorded["settings"] != asdict(self):
+            raise BenchmarkError(
+                f"{results.root} holds results made with other settings ({recorded['settings']}, not {asdict(self)}): "
+                "use another --results-dir, or the same options"
+            )
+
+
+@dataclass
+class Protocol:
+    """The whole protocol: which algorithms and seeds, where, with how many workers.
+
+    :param results: the results folder.
+    :param algos: RL-Zoo3 names of the algorithms, and ``pid`` for the PD controller.
+    :param seeds: training and evaluation seeds.
+    :param tasks: evaluation tasks.
+    :param settings: the settings the numbers depend on.
+    :param save_freq: steps between checkpoints, the points a killed training resumes from.
+    :param workers: worker processes (each zoo process gets one torch thread when there are several).
+    """
+
+    results: ResultsFolder
+    algos: list[str]
+    seeds: list[int]
+    tasks: list[str]
+    settings: Settings
+    save_freq: int = 10_000
+    workers: int = 1
+
+    def check(self) -> None:
+        """Clear errors before any work: unknown algorithms or tasks, a zoo without our config for an algorithm."""
+        from rl_zoo3.utils import ALGOS
+
+        from sb3_cql.zoo.plugin import config_file
+
+        unknown_tasks = sorted(set(self.tasks) - set(envs.ENV_IDS))
+        if unknown_tasks:
+            raise BenchmarkError(f"unknown task(s) {unknown_tasks}: choose among {list(envs.ENV_IDS)}")
+        own_config = any(arg.startswith(("--conf-file", "-conf")) for arg in self.settings.zoo_args)
+        for algo in self.algos:
+            if algo == SCRIPTED:
+                continue
+            if algo not in ALGOS:
+                raise BenchmarkError(f"unknown algo {algo!r}: one of {sorted([*ALGOS, SCRIPTED])}")
+            if not own_config and config_file(algo, TRAIN_ENV) is None:
+                raise BenchmarkError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
+
+
+def _seconds(seconds: float) -> str:
+    minutes, seconds = divmod(int(round(seconds)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h{minutes:02d}m{seconds:02d}s" if hours else f"{minutes}m{seconds:02d}s"
+
+
+def _log_tail(path: Path, lines: int = LOG_TAIL_LINES) -> str:
+    """The last ``lines`` lines of a zoo log, without PyBullet's ``argv[0]=`` noise."""
+    text = path.read_text(errors="replace").splitlines() if path.is_file() else []
+    return "\n".join([line for line in text if not line.startswith("argv[0]=")][-lines:])
+
+
+def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict[str, Any]:
+    """Train ``algo`` on :data:`TRAIN_ENV` with ``seed`` through ``python -m rl_zoo3.train``, continuing the run on
+    disk from its latest saved model if there is one (``-i``, ``-n`` the steps left); record and return the result.
+
+    :raises BenchmarkError: if a zoo process fails (with the tail of its log) or makes no progress.
+    """
+    results, settings = protocol.results, protocol.settings
+    run_dir, log = results.run_dir(seed), results.training_log(algo, seed)
+    log_folder = run_dir / algo
+    log_folder.mkdir(parents=True, exist_ok=True)
+    times_path = log_folder / "segment_times.json"
+    times: dict[str, list[float]] = read_json(times_path) or {}
+    from rl_zoo3.utils import get_latest_run_id
+
+    run = Run.read(log_folder, TRAIN_ENV)
+    while not run.is_complete():
+        segment = f"{TRAIN_ENV}_{get_latest_run_id(str(log_folder), TRAIN_ENV) + 1}"  # the folder the zoo will make
+        command = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", TRAIN_ENV, "--seed", str(seed),
+                   "-f", str(run_dir), "-tb", str(run.tensorboard_folder(segment)),
+                   "--save-freq", str(protocol.save_freq)]  # fmt: skip
+        if threads is not None:
+            command += ["--num-threads", str(threads)]
+        if settings.eval_freq is not None:
+            command += ["--eval-freq", str(settings.eval_freq)]
+        if settings.eval_episodes is not None:
+            command += ["--eval-episodes", str(settings.eval_episodes)]
+        latest = run.latest_model()
+        if latest is None:
+            if settings.n_timesteps is not None:
+                command += ["-n", str(settings.n_timesteps)]
+        else:
+            assert run.n_timesteps is not None
+            command += ["-i", str(latest[1]), "-n", str(run.n_timesteps - latest[0])]
+        command += settings.zoo_args
+        start = time.time()
+        times[segment] = [start, start]
+        write_json(times_path, times)
+        with open(log, "a") as file:
+            file.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} segment {segment}: {' '.join(command)}\n")
+            file.flush()
+            returncode = subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
+        times[segment] = [start, time.time()]
+        write_json(times_path, times)
+        if returncode != 0:
+            raise BenchmarkError(f"{algo} seed {seed}: the zoo failed (exit {returncode}); end of {log}:\n{_log_tail(log)}")
+        run = Run.read(log_folder, TRAIN_ENV)
+        progress = run.latest_model()
+        if progress is None or (latest is not None and progress[0] <= latest[0]):
+            raise BenchmarkError(f"{algo} seed {seed}: segment {segment} saved no progress; end of {log}:\n{_log_tail(log)}")
+    best_step, best_rate, best_path = run.best_model()
+    record = {
+        "algo": algo,
+        "seed": seed,
+        "train_env": TRAIN_ENV,
+        "training_steps": run.n_timesteps,
+        "n_timesteps_override": settings.n_timesteps,
+        "best_step": best_step,
+        "best_eval_success_rate": best_rate,
+        "best_model": str(best_path.relative_to(results.root)),
+        "env_kwargs": run.env_kwargs,
+        "segments": [
+            {"folder": s.folder.name, "offset": s.offset, "cut": s.cut, "resumed_from": s.resumed_from} for s in run.segments
+        ],
+        "train_wall_time_s": round(_wall_time(run, times), 1),
+    }
+    write_json(results.training_record(algo, seed), record)
+    return record
+
+
+def _wall_time(run: Run, times: dict[str, list[float]]) -> float:
+    """Seconds spent in the run's segments: as timed by the runner, or up to a killed segment's last file."""
+    total = 0.0
+    for segment in run.segments:
+        start, end = times.get(segment.folder.name, (None, None))
+        if start is None:
+            continue
+        if end == start:  # killed along with the runner: until its last write
+            end = max((path.stat().st_mtime for path in segment.folder.rglob("*")), default=start)
+        total += end - start
+    return total
+
+
+def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int | None) -> dict[str, Any]:
+    """Success rate of ``algo``'s best model of ``seed`` (or the PD controller) over the final evaluation's episodes of
+    ``task``, seeded with ``seed``; record and return it."""
+    from sb3_cql.evaluate import load_policy, success_rate
+
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    results, settings = protocol.results, protocol.settings
+    training = None if algo == SCRIPTED else read_json(results.training_record(algo, seed))
+    if algo != SCRIPTED and training is None:
+        raise BenchmarkError(f"{algo} seed {seed} is not trained yet")
+    start = time.time()
+    if training is None:  # the thesis's controller, in the tasks' default (absolute) action mode
+        policy, env_kwargs = load_policy(SCRIPTED, None, task), {}
+    else:  # in the envs it was trained in (its action mode)
+        policy, env_kwargs = load_policy(str(results.root / training["best_model"]), algo, task), training["env_kwargs"]
+    rate = success_rate(policy, task, settings.episodes, seed, env_kwargs=env_kwargs)
+    record = {
+        "algo": algo,
+        "seed": seed,
+        "task": task,
+        "success_rate": rate,
+        "episodes": settings.episodes,
+        "best_step": None if training is None else training["best_step"],
+        "training_steps": None if training is None else training["training_steps"],
+        "train_wall_time_s": None if training is None else training["train_wall_time_s"],
+        "eval_wall_time_s": round(time.time() - start, 1),
+    }
+    write_json(results.evaluation_record(algo, seed, task), record)
+    return record
+
+
+@contextmanager
+def _exclusive(results: ResultsFolder) -> Iterator[None]:
+    """One protocol process per results folder at a time."""
+    results.root.mkdir(parents=True, exist_ok=True)
+    with open(results.root / ".lock", "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise BenchmarkError(f"another python -m sb3_cql.benchmark is working in {results.root}") from None
+        yield
+
+
+def run_protocol(protocol: Protocol) -> dict[str, int]:
+    """Do every unit of ``protocol`` not yet recorded, ``protocol.workers`` at a time, printing one line per unit.
+
+    :return: counts of units ``done`` now, ``skipped`` (recorded before) and ``failed``.
+    :raises UnitsFailed: after the other units, if any failed.
+    """
+    protocol.check()
+    results = protocol.results
+    counts = {"done": 0, "skipped": 0, "failed": 0}
+    failures: list[str] = []
+    threads = 1 if protocol.workers > 1 else None
+    with _exclusive(results):
+        protocol.settings.check_folder(results)
+        system = results.root / "system.json"
+        if not system.is_file():
+            write_json(system, system_info())
+        context = multiprocessing.get_context("spawn")  # workers start clean (no torch state, no inherited locks)
+        with ProcessPoolExecutor(max_workers=protocol.workers, mp_context=context) as pool:
+            pending: dict[Future, tuple[str, ...]] = {}
+
+            def submit_evaluations(algo: str, seed: int) -> None:
+                for task in protocol.tasks:
+                    name = ("eval", algo, f"seed {seed}", task)
+                    if results.evaluation_record(algo, seed, task).is_file():
+                        counts["skipped"] += 1
+                        print(f"[{' '.join(name)}] skipped: recorded", flush=True)
+                    else:
+                        pending[pool.submit(evaluate, protocol, algo, seed, task, threads)] = name
+
+            for seed in protocol.seeds:
+                for algo in protocol.algos:
+                    if algo == SCRIPTED or results.training_record(algo, seed).is_file():
+                        if algo != SCRIPTED:
+                            counts["skipped"] += 1
+                            print(f"[train {algo} seed {seed}] skipped: recorded", flush=True)
+                        submit_evaluations(algo, seed)
+                    else:
+                        print(f"[train {algo} seed {seed}] started, log {results.training_log(algo, seed)}", flush=True)
+                        pending[pool.submit(train, protocol, algo, seed, threads)] = ("train", algo, f"seed {seed}")
+            while pending:
+                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    name = pending.pop(future)
+                    label = f"[{' '.join(name)}]"
+                    error = future.exception()
+                    if error is not None:
+                        counts["failed"] += 1
+                        failures.append(f"{label} {error}")
+                        print(f"{label} FAILED: {error}", flush=True)
+                        continue
+                    counts["done"] += 1
+                    record = future.result()
+                    if name[0] == "train":
+                        rate = record["best_eval_success_rate"]
+                        best = "no evaluation" if rate is None else f"best evaluation {rate:.3f}"
+                        wall = _seconds(record["train_wall_time_s"])
+                        print(f"{label} done: {record['training_steps']} steps in {len(record['segments'])} segment(s), "
+                              f"{best} at step {record['best_step']}, {wall}", flush=True)  # fmt: skip
+                        submit_evaluations(record["algo"], record["seed"])
+                    else:
+                        print(f"{label} success rate {record['success_rate']:.3f} over {record['episodes']} episodes, "
+                              f"{_seconds(record['eval_wall_time_s'])}", flush=True)  # fmt: skip
+    if failures:
+        raise UnitsFailed(f"{len(failures)} unit(s) failed:\n" + "\n".join(failures))
+    return counts

@@ -1,0 +1,148 @@
+"""The protocol command, ``python -m sb3_cql.benchmark``, end to end with the real zoo on a 4-episode dataset."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from sb3_cql.benchmark.runs import Run
+
+TASKS = ["Panda-v0", "PandaForce-v0", "PandaPerturbed-v0"]
+# Tiny networks and batches, short runs, one episode per evaluation: the point is the plumbing.
+TINY = ["--zoo-args", "--hyperparams batch_size:64 policy_kwargs:dict(net_arch=[32,32])", "--seeds", "117",
+        "--eval-episodes", "1", "--episodes", "1"]  # fmt: skip
+
+
+class Bench:
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/pid-v0``."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.env = {**os.environ, "MINARI_DATASETS_PATH": str(root / "datasets"), "MPLBACKEND": "Agg"}
+
+    def command(self, *args: str, module: str = "sb3_cql.benchmark") -> list[str]:
+        return [sys.executable, "-m", module, *args]
+
+    def run(self, *args: str, module: str = "sb3_cql.benchmark", check: bool = True) -> subprocess.CompletedProcess:
+        result = subprocess.run(self.command(*args, module=module), cwd=self.root, env=self.env, capture_output=True,
+                                text=True, timeout=900)  # fmt: skip
+        if check:
+            assert result.returncode == 0, f"{args} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+        return result
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory) -> Bench:
+    bench = Bench(tmp_path_factory.mktemp("bench"))
+    bench.run("collect", "--episodes", "4", module="sb3_cql.data")
+    return bench
+
+
+@pytest.fixture(scope="module")
+def quick(bench) -> tuple[Path, str]:
+    """CQL, BC, SAC and the PD controller through the whole protocol: 200 steps, evaluated and saved every 100."""
+    args = ["--algos", "cql", "bc", "sac", "pid", "--n-timesteps", "200", "--eval-freq", "100", "--save-freq", "100",
+            "--results-dir", "quick", *TINY]  # fmt: skip
+    output = bench.run(*args).stdout
+    return bench.root / "quick", output
+
+
+def test_protocol_records_every_unit_and_makes_the_table_and_figures(quick):
+    results, output = quick
+    assert "[train cql seed 117] done: 200 steps in 1 segment(s)" in output
+    report = json.loads((results / "results.json").read_text())
+    rows = {(r["algo"], r["seed"], r["task"]) for r in report["evaluations"]}
+    assert rows == {(algo, 117, task) for algo in ("cql", "bc", "sac", "pid") for task in TASKS}
+    for record in report["evaluations"]:
+        assert record["episodes"] == 1 and 0.0 <= record["success_rate"] <= 1.0
+        if record["algo"] != "pid":
+            assert record["training_steps"] == 200 and record["best_step"] in (100, 200)
+    assert report["summary"]["pid"]["Panda-v0"]["mean"] == 1.0
+    assert set(report["summary"]["cql"]["Panda-v0"]) >= {"mean", "std", "iqm", "iqm_ci95", "seeds"}
+    assert report["settings"]["n_timesteps"] == 200
+    system = report["system"]
+    assert system["cpu_count"] and system["versions"]["torch"] and system["versions"]["stable-baselines3"]
+    training = {r["algo"]: r for r in report["training"]}
+    assert training["cql"]["best_model"].startswith("runs/seed117/cql/Panda-v0_1/")
+    assert training["cql"]["train_wall_time_s"] > 0
+
+    csv_lines = (results / "results.csv").read_text().splitlines()
+    assert csv_lines[0].startswith("algo,seed,task,success_rate,episodes,best_step,training_steps")
+    assert len(csv_lines) == 1 + 12
+    table = (results / "table.md").read_text()
+    for row in ("| CQL |", "| BC |", "| PID |", "| SAC |"):
+        assert table.count(row) == 2  # mean ± std, and IQM [CI]
+    assert table.index("| CQL |") < table.index("| PID |") < table.index("| SAC |")  # the thesis's order
+    assert training["bc"]["env_kwargs"] == {} and training["bc"]["training_steps"] == 200
+    figures = {path.name for path in (results / "figures").glob("*.png")}
+    assert figures == {"training_success.png", "training_losses.png", "final_success.png"} | {
+        f"filmstrip_{task}.png" for task in TASKS
+    }
+
+
+def test_a_second_run_does_no_work_and_report_only_remakes_the_outputs(bench, quick):
+    results, _ = quick
+    args = ["--algos", "cql", "bc", "sac", "pid", "--n-timesteps", "200", "--eval-freq", "100", "--save-freq", "100",
+            "--results-dir", "quick", "--no-filmstrips", *TINY]  # fmt: skip
+    output = bench.run(*args).stdout
+    assert "started" not in output and "units: 0 done, 15 already recorded" in output
+    assert sorted(path.name for path in (results / "runs" / "seed117" / "cql").glob("Panda-v0_*")) == ["Panda-v0_1"]
+
+    (results / "table.md").unlink()
+    bench.run("--report-only", "--results-dir", "quick", "--no-filmstrips")
+    assert "| CQL |" in (results / "table.md").read_text()
+
+
+def test_clear_errors(bench, quick):
+    result = bench.run("--algos", "cql", "nothing", "--results-dir", "errors", check=False)
+    assert result.returncode != 0 and "unknown algo 'nothing'" in result.stderr
+    result = bench.run("--algos", "pid", "--results-dir", "quick", "--episodes", "3", check=False)
+    assert result.returncode != 0 and "other settings" in result.stderr
+    result = bench.run("--report-only", "--results-dir", "nowhere", check=False)
+    assert result.returncode != 0 and "no protocol results" in result.stderr
+
+
+def test_a_failing_zoo_run_shows_its_log(bench):
+    result = bench.run("--algos", "cql", "--tasks", "Panda-v0", "--n-timesteps", "10", "--results-dir", "failing",
+                       "--zoo-args", "--hyperparams no_such_argument:1", "--no-filmstrips", check=False)  # fmt: skip
+    assert result.returncode != 0
+    assert "[train cql seed 117] FAILED" in result.stdout
+    assert "the zoo failed (exit 1)" in result.stderr and "no_such_argument" in result.stderr
+
+
+def test_a_killed_training_resumes_from_its_checkpoint(bench):
+    args = ["--algos", "cql", "--tasks", "Panda-v0", "--n-timesteps", "300", "--eval-freq", "100", "--save-freq", "100",
+            "--results-dir", "killed", "--no-filmstrips", *TINY]  # fmt: skip
+    first = bench.root / "killed" / "runs" / "seed117" / "cql" / "Panda-v0_1"
+    process = subprocess.Popen(bench.command(*args), cwd=bench.root, env=bench.env, start_new_session=True,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 600
+        while not (first / "rl_model_100_steps.zip").is_file():
+            assert process.poll() is None and time.monotonic() < deadline, "no checkpoint before the end"
+            time.sleep(0.2)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)  # the runner, its worker and the zoo, mid-training
+        process.wait()
+    assert not (bench.root / "killed" / "records" / "train").exists()
+
+    output = bench.run(*args).stdout
+    assert "[train cql seed 117] done: 300 steps in 2 segment(s)" in output
+    record = json.loads((bench.root / "killed" / "records" / "train" / "cql-seed117.json").read_text())
+    resumed = record["segments"][1]
+    assert resumed["folder"] == "Panda-v0_2" and resumed["resumed_from"].startswith("Panda-v0_1/rl_model_")
+    assert resumed["offset"] in (100, 200)
+    run = Run.read(bench.root / "killed" / "runs" / "seed117" / "cql", "Panda-v0")
+    steps, rates = run.evaluations()
+    # Each step at most once (what the killed segment did after its checkpoint is dropped), the resumed segment's
+    # evaluations all there; the one a kill interrupted right after its checkpoint is not redone.
+    assert steps.tolist() == sorted(set(steps.tolist())) and set(steps.tolist()) <= {100, 200, 300}
+    assert {step for step in (100, 200, 300) if step > resumed["offset"]} <= set(steps.tolist())
+    best_step, best_rate, best_path = run.best_model()
+    assert best_rate == rates.max() and best_step == steps[rates.argmax()] and record["best_step"] == best_step
+    assert run.scalars("train/actor_loss")[0].max() <= 300
