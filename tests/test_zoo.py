@@ -117,8 +117,8 @@ def test_evaluation_settings_come_from_the_config(zoo):
 def test_env_kwargs_of_the_config_reach_the_evaluation_env(zoo):
     zoo.run("collect", "--episodes", "2", "--action-mode", "delta", module="sb3_cql.data")  # sb3cql/Panda-v0/pid-delta-v0
     (zoo.root / "delta.yml").write_text(
-        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 4\n  dataset: sb3cql/Panda-v0/pid-delta-v0\n  env_kwargs:\n    action_mode: delta\n"
-        "  batch_size: 16\n  policy_kwargs: 'dict(net_arch=[8])'\n"
+        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 4\n  dataset: sb3cql/Panda-v0/pid-delta-v0\n"
+        "  env_kwargs:\n    action_mode: delta\n  batch_size: 16\n  policy_kwargs: 'dict(net_arch=[8])'\n"
     )
     # Record the action bound of the training and evaluation envs the zoo makes (1 in delta mode, the joint limits else).
     code = (
