@@ -19,7 +19,7 @@ TINY = ["--zoo-args", "--hyperparams batch_size:64 policy_kwargs:dict(net_arch=[
 
 
 class Bench:
-    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/pid-v0``."""
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-delta-v0``, our configs'."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -39,7 +39,7 @@ class Bench:
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory) -> Bench:
     bench = Bench(tmp_path_factory.mktemp("bench"))
-    bench.run("collect", "--episodes", "4", module="sb3_cql.data")
+    bench.run("collect", "--policy", "noisy", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
     return bench
 
 
@@ -78,7 +78,7 @@ def test_protocol_records_every_unit_and_makes_the_table_and_figures(quick):
     for row in ("| CQL |", "| BC |", "| PID |", "| SAC |"):
         assert table.count(row) == 2  # mean ± std, and IQM [CI]
     assert table.index("| CQL |") < table.index("| PID |") < table.index("| SAC |")  # the thesis's order
-    assert training["bc"]["env_kwargs"] == {} and training["bc"]["training_steps"] == 200
+    assert training["bc"]["env_kwargs"] == {"action_mode": "delta"} and training["bc"]["training_steps"] == 200
     figures = {path.name for path in (results / "figures").glob("*.png")}
     assert figures == {"training_success.png", "training_losses.png", "final_success.png"} | {
         f"filmstrip_{task}.png" for task in TASKS

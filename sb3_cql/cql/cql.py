@@ -69,8 +69,9 @@ class CQL(OfflineSAC):
     :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
-    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning (log-likelihood of the data
-        actions in place of the Q-value, next to the entropy term); the critics train as usual meanwhile.
+    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning in place of the Q-value (the
+        deterministic action fitted to the data actions by least squares, the spread by likelihood), next to the
+        entropy term; the critics train as usual meanwhile.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
@@ -204,13 +205,16 @@ class CQL(OfflineSAC):
             self.critic.optimizer.step()
 
             if self.num_timesteps < self.bc_steps:
-                # Behaviour-cloning warm start (as the CQL paper's code): SAC's actor loss with the data actions'
-                # log-likelihood in place of Q. The likelihood also fits the policy's spread to the data's, which keeps
-                # its samples (backed up, and pushed down by the conservative term) near the data.
+                # Behaviour-cloning warm start: in SAC's actor loss, imitation in place of Q. The deterministic action
+                # is fitted by least squares (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is biased
+                # when data actions saturate at +-1, as the gripper's do), the spread by the likelihood of the data
+                # actions around it, which keeps the policy's samples (backed up, and pushed down by the conservative
+                # term) where the data are.
                 mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
-                distribution = self.actor.action_dist.proba_distribution(mean_actions, log_std, **kwargs)
-                data_actions = data.actions.clamp(-1 + 1e-6, 1 - 1e-6)
-                actor_loss = (ent_coef * log_prob - distribution.log_prob(data_actions).reshape(-1, 1)).mean()
+                distribution = self.actor.action_dist.proba_distribution(mean_actions.detach(), log_std, **kwargs)
+                data_log_prob = distribution.log_prob(data.actions.clamp(-1 + 1e-6, 1 - 1e-6)).reshape(-1, 1)
+                imitation_loss = F.mse_loss(th.tanh(mean_actions), data.actions) - data_log_prob.mean()
+                actor_loss = (ent_coef * log_prob).mean() + imitation_loss
             else:
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
