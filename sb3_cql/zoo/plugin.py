@@ -103,6 +103,9 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             # The zoo gives a config's env_kwargs to the training env only (it copied the empty command-line value
             # to the evaluation env before reading the config): evaluate in the env trained in (e.g. its action mode).
             self.eval_env_kwargs = self.env_kwargs
+        if self.env_kwargs and getattr(self.args, "env_kwargs", None) is None:
+            # Recorded in the run's args.yml too: record_video reads env_kwargs from there only, not from config.yml.
+            self.args.env_kwargs = self.env_kwargs
         return result
 
     manager.__init__ = __init__
