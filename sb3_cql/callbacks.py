@@ -13,9 +13,10 @@ class PrefillReplayBuffer(BaseCallback):
 
         callback:
           - sb3_cql.callbacks.PrefillReplayBuffer:
-              dataset: sb3cql/Panda-v0/pid-v0
+              dataset: sb3cql/Panda-v0/noisy-delta-v0
 
-    The buffer grows if ``buffer_size`` cannot hold the data (online transitions then go after them).
+    The buffer grows to the data's size if ``buffer_size`` cannot hold them; it is then full, and online
+    transitions replace the oldest data first, as in any full SB3 buffer.
 
     :param dataset: a Minari id (a missing standard id is collected first, :func:`sb3_cql.data.ensure_dataset`).
     :param verbose: 1 prints how many transitions were added.
