@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import torch as th
 from minari import MinariDataset
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import update_learning_rate
 
 from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
-
-SelfBC = TypeVar("SelfBC", bound="BC")
 
 
 class BC(OfflineSAC):
@@ -71,17 +69,6 @@ class BC(OfflineSAC):
             device=device,
             _init_setup_model=_init_setup_model,
         )
-
-    def learn(
-        self: SelfBC,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 1000,
-        tb_log_name: str = "BC",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfBC:
-        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """``gradient_steps`` Adam steps on the behaviour-cloning loss of the actor."""

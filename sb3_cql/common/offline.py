@@ -119,7 +119,7 @@ class OfflineSAC(SAC):
         total_timesteps: int,
         callback: MaybeCallback = None,
         log_interval: int = 1000,
-        tb_log_name: str = "run",
+        tb_log_name: str | None = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfOfflineSAC:
@@ -128,7 +128,7 @@ class OfflineSAC(SAC):
         :param total_timesteps: gradient steps.
         :param callback: SB3 callback(s), called once per gradient step.
         :param log_interval: gradient steps between two dumps of the logs.
-        :param tb_log_name: name of the TensorBoard run.
+        :param tb_log_name: name of the TensorBoard run; by default the algorithm's class name (``CQL``, ``BC``).
         :param reset_num_timesteps: count from 0 (else continue the count of a previous ``learn``).
         :param progress_bar: show a progress bar of the gradient steps.
         """
@@ -143,7 +143,7 @@ class OfflineSAC(SAC):
         # Each step allocates and frees ~11 MB activations: keep that memory instead of page-faulting it back in.
         retain_freed_memory()
         total_timesteps, callback = self._setup_learn(
-            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+            total_timesteps, callback, reset_num_timesteps, tb_log_name or type(self).__name__, progress_bar
         )
         callback.on_training_start(locals(), globals())
         while self.num_timesteps < total_timesteps:

@@ -3,21 +3,19 @@
 from __future__ import annotations
 
 import math
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import torch as th
 from minari import MinariDataset
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
 from sb3_cql.common import OfflineSAC
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
-
-SelfCQL = TypeVar("SelfCQL", bound="CQL")
 
 #: Bound of the learned Lagrange multiplier, as in the reference implementation.
 MAX_ALPHA_PRIME = 1e6
@@ -148,17 +146,6 @@ class CQL(OfflineSAC):
         if self.cql_target_action_gap is not None:
             self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
-
-    def learn(
-        self: SelfCQL,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 1000,
-        tb_log_name: str = "CQL",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfCQL:
-        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's update with the conservative term added to the critic loss (and, with ``cql_target_action_gap``,
