@@ -77,7 +77,8 @@ class BC(OfflineSAC):
         losses = []
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            loss = behaviour_cloning_loss(self.actor, data.observations, data.actions)
+            mean_actions, _, _ = self.actor.get_action_dist_params(data.observations)
+            loss = behaviour_cloning_loss(mean_actions, data.actions)
             self.actor.optimizer.zero_grad()
             loss.backward()
             self.actor.optimizer.step()

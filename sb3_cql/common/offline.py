@@ -13,7 +13,6 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule
-from stable_baselines3.sac.policies import Actor
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
@@ -23,9 +22,10 @@ from sb3_cql.data import ensure_dataset, fill_replay_buffer
 SelfOfflineSAC = TypeVar("SelfOfflineSAC", bound="OfflineSAC")
 
 
-def behaviour_cloning_loss(actor: Actor, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
-    """Mean squared error between the actor's deterministic actions and ``actions`` (both in [-1, 1])."""
-    return F.mse_loss(actor(observations, deterministic=True), actions)
+def behaviour_cloning_loss(mean_actions: th.Tensor, actions: th.Tensor) -> th.Tensor:
+    """Mean squared error between a SAC actor's deterministic actions, ``tanh`` of its ``mean_actions`` (from
+    ``Actor.get_action_dist_params``), and the data's ``actions`` (both in [-1, 1])."""
+    return F.mse_loss(th.tanh(mean_actions), actions)
 
 
 class OfflineSAC(SAC):

@@ -14,7 +14,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.common import OfflineSAC
+from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 
 #: Bound of the learned Lagrange multiplier, as in the reference implementation.
@@ -200,7 +200,7 @@ class CQL(OfflineSAC):
                 mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
                 distribution = self.actor.action_dist.proba_distribution(mean_actions.detach(), log_std, **kwargs)
                 data_log_prob = distribution.log_prob(data.actions.clamp(-1 + 1e-6, 1 - 1e-6)).reshape(-1, 1)
-                imitation_loss = F.mse_loss(th.tanh(mean_actions), data.actions) - data_log_prob.mean()
+                imitation_loss = behaviour_cloning_loss(mean_actions, data.actions) - data_log_prob.mean()
                 actor_loss = (ent_coef * log_prob).mean() + imitation_loss
             else:
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
