@@ -162,6 +162,38 @@ def test_cql_is_conservative_where_sac_overestimates():
     )
 
 
+def test_warm_start_imitates_saturated_data_actions():
+    """During ``bc_steps`` the deterministic action follows the data's, also where they saturate at the bound (as the
+    gripper's +-1): the entropy term, near 1 at the start, shapes only the spread."""
+    env = OneStepBandit()
+    buffer = ReplayBuffer(500, env.observation_space, env.action_space)
+    for _ in range(500):
+        buffer.add(np.zeros(1), np.zeros(1), np.array([1.0]), np.array([0.0]), np.array([True]), [{}])
+    model = CQL("MlpPolicy", env, dataset=buffer, batch_size=64, actor_learning_rate=1e-3, bc_steps=10_000,
+                policy_kwargs=TINY, seed=0)  # fmt: skip
+    model.learn(500)
+    action, _ = model.predict(np.zeros(1, dtype=np.float32), deterministic=True)
+    assert action[0] > 0.9
+
+
+def test_critics_learn_the_scaled_and_shifted_reward():
+    """With ``reward_scale`` and ``reward_bias`` the critics fit ``scale * r + bias`` (one-step episodes: Q is the
+    reward), while the buffer keeps the data's rewards."""
+    env = OneStepBandit()
+    buffer = ReplayBuffer(1000, env.observation_space, env.action_space)
+    for action in np.random.default_rng(0).uniform(-1.0, 1.0, size=1000):
+        buffer.add(np.zeros(1), np.zeros(1), np.array([action]), np.array([1 - action**2]), np.array([True]), [{}])
+    rewards = buffer.rewards.copy()
+    model = CQL("MlpPolicy", env, dataset=buffer, batch_size=64, learning_rate=1e-3, cql_alpha=0.0, reward_scale=4.0,
+                reward_bias=-2.0, policy_kwargs=TINY, seed=0)  # fmt: skip
+    model.learn(1500)
+    actions = th.linspace(-0.9, 0.9, 7).reshape(-1, 1)
+    with th.no_grad():
+        q_values = th.cat(model.critic(th.zeros(7, 1), actions), dim=1).mean(dim=1)
+    np.testing.assert_allclose(q_values.numpy(), (4.0 * (1 - actions**2) - 2.0).flatten().numpy(), atol=0.25)
+    np.testing.assert_array_equal(model.replay_buffer.rewards, rewards)
+
+
 @pytest.mark.slow
 def test_cql_learns_pendulum_from_a_good_policys_data():
     """SAC learns Pendulum-v1 online; 20,000 transitions of its policy (with Gaussian noise for coverage) are CQL's

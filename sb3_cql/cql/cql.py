@@ -70,6 +70,10 @@ class CQL(OfflineSAC):
     :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning in place of the Q-value (the
         deterministic action fitted to the data actions by least squares, the spread by likelihood), next to the
         entropy term; the critics train as usual meanwhile.
+    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
+        rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
+        that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
+    :param reward_bias: see ``reward_scale``.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
@@ -100,6 +104,8 @@ class CQL(OfflineSAC):
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
         bc_steps: int = 0,
+        reward_scale: float = 1.0,
+        reward_bias: float = 0.0,
         normalize_observations: bool = True,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -117,6 +123,8 @@ class CQL(OfflineSAC):
         self.cql_deterministic_backup = cql_deterministic_backup
         self.cql_max_backup = cql_max_backup
         self.bc_steps = bc_steps
+        self.reward_scale = reward_scale
+        self.reward_bias = reward_bias
         self.log_alpha_prime: th.Tensor | None = None
         self.alpha_prime_optimizer: th.optim.Adam | None = None
         super().__init__(
@@ -175,7 +183,8 @@ class CQL(OfflineSAC):
             _append(logs, "train/ent_coef", ent_coef.item())
 
             with th.no_grad():
-                target_q_values = data.rewards + (1 - data.dones) * self.gamma * self._next_q_values(data, ent_coef)
+                rewards = self.reward_scale * data.rewards + self.reward_bias
+                target_q_values = rewards + (1 - data.dones) * self.gamma * self._next_q_values(data, ent_coef)
 
             current_q_values, conservative, diagnostics = self._q_values_and_conservative_terms(data)
             td_loss = 0.5 * sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
@@ -193,15 +202,16 @@ class CQL(OfflineSAC):
 
             if self.num_timesteps < self.bc_steps:
                 # Behaviour-cloning warm start: in SAC's actor loss, imitation in place of Q. The deterministic action
-                # is fitted by least squares (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is biased
-                # when data actions saturate at +-1, as the gripper's do), the spread by the likelihood of the data
-                # actions around it, which keeps the policy's samples (backed up, and pushed down by the conservative
-                # term) where the data are.
+                # is fitted by least squares alone (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is
+                # biased when data actions saturate at +-1, as the gripper's do, and the entropy term's gradient pulls
+                # the mean towards 0, which at an entropy coefficient near 1 outweighs the least squares on the
+                # gripper); the spread by the entropy term and the likelihood of the data actions around the mean,
+                # which keeps the policy's samples (backed up, and pushed down by the conservative term) near the data.
                 mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
-                distribution = self.actor.action_dist.proba_distribution(mean_actions.detach(), log_std, **kwargs)
-                data_log_prob = distribution.log_prob(data.actions.clamp(-1 + 1e-6, 1 - 1e-6)).reshape(-1, 1)
+                _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std, **kwargs)
+                data_log_prob = self.actor.action_dist.log_prob(data.actions.clamp(-1 + 1e-6, 1 - 1e-6))
                 imitation_loss = behaviour_cloning_loss(mean_actions, data.actions) - data_log_prob.mean()
-                actor_loss = (ent_coef * log_prob).mean() + imitation_loss
+                actor_loss = (ent_coef * spread_log_prob).mean() + imitation_loss
             else:
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
