@@ -176,6 +176,18 @@ def test_warm_start_imitates_saturated_data_actions():
     assert action[0] > 0.9
 
 
+def test_warm_start_spread_losses_train_only_the_log_std_head(monkeypatch):
+    """Without the least-squares term, the warm start's entropy and likelihood terms change the log-std head and
+    nothing the mean depends on."""
+    monkeypatch.setattr("sb3_cql.cql.cql.behaviour_cloning_loss", lambda mean_actions, actions: 0.0 * mean_actions.sum())
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, actor_learning_rate=1e-2,
+                bc_steps=1000, policy_kwargs=TINY, seed=0)  # fmt: skip
+    before = {name: value.clone() for name, value in model.actor.named_parameters()}
+    model.learn(20)
+    changed = {name for name, value in model.actor.named_parameters() if not th.equal(value, before[name])}
+    assert changed == {"log_std.weight", "log_std.bias"}
+
+
 def test_critics_learn_the_scaled_and_shifted_reward():
     """With ``reward_scale`` and ``reward_bias`` the critics fit ``scale * r + bias`` (one-step episodes: Q is the
     reward), while the buffer keeps the data's rewards."""

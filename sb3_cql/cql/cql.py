@@ -11,6 +11,7 @@ from minari import MinariDataset
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
@@ -116,6 +117,8 @@ class CQL(OfflineSAC):
     ) -> None:
         if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0:
             raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0 and cql_alpha >= 0")
+        if bc_steps > 0 and (policy_kwargs or {}).get("use_sde", False):
+            raise ValueError("bc_steps (the behaviour-cloning warm start) needs the actor's log-std head: not with use_sde")
         self.cql_alpha = cql_alpha
         self.cql_n_actions = cql_n_actions
         self.cql_temperature = cql_temperature
@@ -203,12 +206,13 @@ class CQL(OfflineSAC):
             if self.num_timesteps < self.bc_steps:
                 # Behaviour-cloning warm start: in SAC's actor loss, imitation in place of Q. The deterministic action
                 # is fitted by least squares alone (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is
-                # biased when data actions saturate at +-1, as the gripper's do, and the entropy term's gradient pulls
-                # the mean towards 0, which at an entropy coefficient near 1 outweighs the least squares on the
-                # gripper); the spread by the entropy term and the likelihood of the data actions around the mean,
-                # which keeps the policy's samples (backed up, and pushed down by the conservative term) near the data.
-                mean_actions, log_std, kwargs = self.actor.get_action_dist_params(data.observations)
-                _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std, **kwargs)
+                # biased when data actions saturate at +-1, as the gripper's do); the spread, by the entropy term and
+                # the likelihood of the data actions around the mean, which keeps the policy's samples (backed up, and
+                # pushed down by the conservative term) near the data. The spread's losses train the log-std head
+                # only: through the shared layers they moved the mean enough to break a working grasp within a few
+                # hundred steps (results/dataset_comparison.md).
+                mean_actions, log_std = self._imitation_dist_params(data.observations)
+                _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std)
                 data_log_prob = self.actor.action_dist.log_prob(data.actions.clamp(-1 + 1e-6, 1 - 1e-6))
                 imitation_loss = behaviour_cloning_loss(mean_actions, data.actions) - data_log_prob.mean()
                 actor_loss = (ent_coef * spread_log_prob).mean() + imitation_loss
@@ -235,6 +239,14 @@ class CQL(OfflineSAC):
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         for key, values in logs.items():
             self.logger.record(key, float(np.mean(values)))
+
+    def _imitation_dist_params(self, observations: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """The actor's mean actions and log-std (``Actor.get_action_dist_params``), with the log-std head fed the
+        shared layers' output detached: gradients of the log-std reach that head only."""
+        features = self.actor.extract_features(observations, self.actor.features_extractor)
+        latent_pi = self.actor.latent_pi(features)
+        log_std = th.clamp(self.actor.log_std(latent_pi.detach()), LOG_STD_MIN, LOG_STD_MAX)
+        return self.actor.mu(latent_pi), log_std
 
     def _next_q_values(self, data, ent_coef: th.Tensor) -> th.Tensor:
         """The soft (or, with ``cql_deterministic_backup``, plain) value of the next states under the target critics."""
