@@ -188,6 +188,17 @@ def test_warm_start_spread_losses_train_only_the_log_std_head(monkeypatch):
     assert changed == {"log_std.weight", "log_std.bias"}
 
 
+def test_warm_start_learning_rate_decays_to_the_actors():
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, actor_learning_rate=1e-4,
+                bc_steps=100, bc_learning_rate=1e-2, policy_kwargs=TINY, seed=0)  # fmt: skip
+    rates = []
+    for _ in range(4):
+        model.learn(50, reset_num_timesteps=False)
+        rates.append(model.actor.optimizer.param_groups[0]["lr"])
+    # set before the step that starts at num_timesteps 49 and 99, then the Q phase's rate
+    np.testing.assert_allclose(rates, [1e-2 + 0.49 * (1e-4 - 1e-2), 1e-2 + 0.99 * (1e-4 - 1e-2), 1e-4, 1e-4], rtol=1e-6)
+
+
 def test_critics_learn_the_scaled_and_shifted_reward():
     """With ``reward_scale`` and ``reward_bias`` the critics fit ``scale * r + bias`` (one-step episodes: Q is the
     reward), while the buffer keeps the data's rewards."""

@@ -11,8 +11,8 @@ from minari import MinariDataset
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
-from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
+from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from torch.nn import functional as F
 
 from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
@@ -71,6 +71,9 @@ class CQL(OfflineSAC):
     :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning in place of the Q-value (the
         deterministic action fitted to the data actions by least squares, the spread by likelihood), next to the
         entropy term; the critics train as usual meanwhile.
+    :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
+        ``bc_steps`` to ``actor_learning_rate`` (imitation needs a larger rate than following Q, and a clone settles
+        only as its rate decays); ``None`` for ``actor_learning_rate`` throughout.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
         rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
@@ -105,6 +108,7 @@ class CQL(OfflineSAC):
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
         bc_steps: int = 0,
+        bc_learning_rate: float | None = None,
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
         normalize_observations: bool = True,
@@ -126,6 +130,7 @@ class CQL(OfflineSAC):
         self.cql_deterministic_backup = cql_deterministic_backup
         self.cql_max_backup = cql_max_backup
         self.bc_steps = bc_steps
+        self.bc_learning_rate = bc_learning_rate
         self.reward_scale = reward_scale
         self.reward_bias = reward_bias
         self.log_alpha_prime: th.Tensor | None = None
@@ -165,7 +170,9 @@ class CQL(OfflineSAC):
         optimizers = [self.critic.optimizer]
         optimizers += [opt for opt in (self.ent_coef_optimizer, self.alpha_prime_optimizer) if opt is not None]
         self._update_learning_rate(optimizers)
-        update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
+        actor_learning_rate = self._actor_learning_rate()
+        update_learning_rate(self.actor.optimizer, actor_learning_rate)
+        self.logger.record("train/actor_learning_rate", actor_learning_rate)
         logs: dict[str, list[float]] = {}
 
         for _ in range(gradient_steps):
@@ -239,6 +246,14 @@ class CQL(OfflineSAC):
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         for key, values in logs.items():
             self.logger.record(key, float(np.mean(values)))
+
+    def _actor_learning_rate(self) -> float:
+        """The actor's schedule, or during the warm start the linear decay from ``bc_learning_rate`` to it."""
+        learning_rate = self.actor_lr_schedule(self._current_progress_remaining)
+        if self.bc_learning_rate is None or self.num_timesteps >= self.bc_steps:
+            return learning_rate
+        fraction = self.num_timesteps / self.bc_steps
+        return self.bc_learning_rate + fraction * (learning_rate - self.bc_learning_rate)
 
     def _imitation_dist_params(self, observations: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """The actor's mean actions and log-std (``Actor.get_action_dist_params``), with the log-std head fed the
