@@ -69,8 +69,8 @@ class CQL(OfflineSAC):
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
     :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning in place of the Q-value (the
-        deterministic action fitted to the data actions by least squares, the spread by likelihood), next to the
-        entropy term; the critics train as usual meanwhile.
+        deterministic action fitted to the data actions by least squares), next to the entropy term, which sets the
+        spread alone (through the log-std head); the critics train as usual meanwhile.
     :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
         ``bc_steps`` to ``actor_learning_rate`` (imitation needs a larger rate than following Q, and a clone settles
         only as its rate decays); ``None`` for ``actor_learning_rate`` throughout.
@@ -212,17 +212,16 @@ class CQL(OfflineSAC):
 
             if self.num_timesteps < self.bc_steps:
                 # Behaviour-cloning warm start: in SAC's actor loss, imitation in place of Q. The deterministic action
-                # is fitted by least squares alone (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is
-                # biased when data actions saturate at +-1, as the gripper's do); the spread, by the entropy term and
-                # the likelihood of the data actions around the mean, which keeps the policy's samples (backed up, and
-                # pushed down by the conservative term) near the data. The spread's losses train the log-std head
-                # only: through the shared layers they moved the mean enough to break a working grasp within a few
-                # hundred steps (results/dataset_comparison.md).
+                # is fitted by least squares (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is biased
+                # when data actions saturate at +-1, as the gripper's do); the spread is SAC's, set by the entropy
+                # term against the target entropy, and trains the log-std head only: through the shared layers it
+                # moved the mean enough to break a working grasp within a few hundred steps. (A likelihood of the data
+                # actions for the spread made the policy's samples bang-bang on the noisy data, whose clipped actions
+                # often sit at +-1; the conservative term then kept Q at the policy's samples tens below Q at the data
+                # actions, and the backup carried that gap into every Q-value: results/dataset_comparison.md.)
                 mean_actions, log_std = self._imitation_dist_params(data.observations)
                 _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std)
-                data_log_prob = self.actor.action_dist.log_prob(data.actions.clamp(-1 + 1e-6, 1 - 1e-6))
-                imitation_loss = behaviour_cloning_loss(mean_actions, data.actions) - data_log_prob.mean()
-                actor_loss = (ent_coef * spread_log_prob).mean() + imitation_loss
+                actor_loss = (ent_coef * spread_log_prob).mean() + behaviour_cloning_loss(mean_actions, data.actions)
             else:
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
