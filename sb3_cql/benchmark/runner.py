@@ -130,6 +130,7 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
     """
     results, settings = protocol.results, protocol.settings
     run_dir, log = results.run_dir(seed), results.training_log(algo, seed)
+    print(f"[train {algo} seed {seed}] started", flush=True)
     log_folder = run_dir / algo
     log_folder.mkdir(parents=True, exist_ok=True)
     times_path = log_folder / "segment_times.json"
@@ -287,7 +288,7 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                             print(f"[train {algo} seed {seed}] skipped: recorded", flush=True)
                         submit_evaluations(algo, seed)
                     else:
-                        print(f"[train {algo} seed {seed}] started, log {results.training_log(algo, seed)}", flush=True)
+                        print(f"[train {algo} seed {seed}] queued, log {results.training_log(algo, seed)}", flush=True)
                         pending[pool.submit(train, protocol, algo, seed, threads)] = ("train", algo, f"seed {seed}")
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
