@@ -121,8 +121,6 @@ class CQL(OfflineSAC):
     ) -> None:
         if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0:
             raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0 and cql_alpha >= 0")
-        if bc_steps > 0 and (policy_kwargs or {}).get("use_sde", False):
-            raise ValueError("bc_steps (the behaviour-cloning warm start) needs the actor's log-std head: not with use_sde")
         self.cql_alpha = cql_alpha
         self.cql_n_actions = cql_n_actions
         self.cql_temperature = cql_temperature
