@@ -177,8 +177,8 @@ def test_warm_start_imitates_saturated_data_actions():
 
 
 def test_warm_start_spread_losses_train_only_the_log_std_head(monkeypatch):
-    """Without the least-squares term, the warm start's entropy and likelihood terms change the log-std head and
-    nothing the mean depends on."""
+    """Without the least-squares term, the warm start's entropy term changes the log-std head and nothing the mean
+    depends on."""
     monkeypatch.setattr("sb3_cql.cql.cql.behaviour_cloning_loss", lambda mean_actions, actions: 0.0 * mean_actions.sum())
     model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, actor_learning_rate=1e-2,
                 bc_steps=1000, policy_kwargs=TINY, seed=0)  # fmt: skip
