@@ -283,7 +283,8 @@ def test_policy_actions_are_sampled_as_from_repeated_states():
     model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, policy_kwargs=TINY, seed=0)
     observations = th.randn(6, 3)
     th.manual_seed(1)
-    actions, log_prob = model._sample_actions(observations, 4)
+    with th.no_grad():
+        actions, log_prob = model._sample_actions(*model.actor.get_action_dist_params(observations)[:2], 4)
     th.manual_seed(1)
     expected_actions, expected_log_prob = model.actor.action_log_prob(observations.repeat_interleave(4, dim=0))
     th.testing.assert_close(actions, expected_actions)

@@ -175,8 +175,13 @@ class CQL(OfflineSAC):
 
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+            # The actor runs once on s and once on s' per step; every sample below is drawn from these parameters
+            # (the actor changes only at the end of the step).
+            policy = self.actor.get_action_dist_params(data.observations)[:2]
+            actions_pi, log_prob = self.actor.action_dist.log_prob_from_params(*policy)
             log_prob = log_prob.reshape(-1, 1)
+            with th.no_grad():
+                next_policy = self.actor.get_action_dist_params(data.next_observations)[:2]
 
             ent_coef_loss = None
             if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
@@ -192,9 +197,13 @@ class CQL(OfflineSAC):
 
             with th.no_grad():
                 rewards = self.reward_scale * data.rewards + self.reward_bias
-                target_q_values = rewards + (1 - data.dones) * self.gamma * self._next_q_values(data, ent_coef)
+                next_q_values = self._next_q_values(data.next_observations, next_policy, ent_coef)
+                target_q_values = rewards + (1 - data.dones) * self.gamma * next_q_values
 
-            current_q_values, conservative, diagnostics = self._q_values_and_conservative_terms(data)
+            detached_policy = (policy[0].detach(), policy[1].detach())
+            current_q_values, conservative, diagnostics = self._q_values_and_conservative_terms(
+                data, detached_policy, next_policy
+            )
             td_loss = 0.5 * sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
             conservative_loss = self._conservative_loss(conservative, logs)
             critic_loss = td_loss + conservative_loss
@@ -260,11 +269,14 @@ class CQL(OfflineSAC):
         log_std = th.clamp(self.actor.log_std(latent_pi.detach()), LOG_STD_MIN, LOG_STD_MAX)
         return self.actor.mu(latent_pi), log_std
 
-    def _next_q_values(self, data, ent_coef: th.Tensor) -> th.Tensor:
-        """The soft (or, with ``cql_deterministic_backup``, plain) value of the next states under the target critics."""
-        next_observations = data.next_observations
+    def _next_q_values(
+        self, next_observations: th.Tensor, next_policy: tuple[th.Tensor, th.Tensor], ent_coef: th.Tensor
+    ) -> th.Tensor:
+        """The soft (or, with ``cql_deterministic_backup``, plain) value of the next states under the target critics,
+        for a policy sample (or the best of ``cql_n_actions`` with ``cql_max_backup``) from ``next_policy``'s
+        (mean actions, log-std)."""
         n_samples = self.cql_n_actions if self.cql_max_backup else 1
-        next_actions, next_log_prob = self._sample_actions(next_observations, n_samples)
+        next_actions, next_log_prob = self._sample_actions(*next_policy, n_samples)
         if n_samples > 1:
             next_observations = next_observations.repeat_interleave(n_samples, dim=0)
         next_q_values = th.cat(self.critic_target(next_observations, next_actions), dim=1)
@@ -275,15 +287,18 @@ class CQL(OfflineSAC):
             next_q_values = next_q_values.reshape(-1, n_samples).max(dim=1, keepdim=True).values
         return next_q_values
 
-    def _q_values_and_conservative_terms(self, data) -> tuple[list[th.Tensor], list[th.Tensor], dict[str, float]]:
+    def _q_values_and_conservative_terms(
+        self, data, policy: tuple[th.Tensor, th.Tensor], next_policy: tuple[th.Tensor, th.Tensor]
+    ) -> tuple[list[th.Tensor], list[th.Tensor], dict[str, float]]:
         """Q on the data actions and each critic's ``logsumexp - Q(data)`` gap, from one critic forward pass over the
-        data actions and the ``3 * cql_n_actions`` sampled actions of every state."""
+        data actions and the ``3 * cql_n_actions`` sampled actions of every state (the policy's, drawn from its
+        (mean actions, log-std) at s and at s')."""
         batch_size, n = data.observations.shape[0], self.cql_n_actions
         action_dim = self.action_space.shape[0]
         with th.no_grad():
             random_actions = th.empty(batch_size * n, action_dim, device=self.device).uniform_(-1.0, 1.0)
-            policy_actions, policy_log_prob = self._sample_actions(data.observations, n)
-            next_policy_actions, next_policy_log_prob = self._sample_actions(data.next_observations, n)
+            policy_actions, policy_log_prob = self._sample_actions(*policy, n)
+            next_policy_actions, next_policy_log_prob = self._sample_actions(*next_policy, n)
         observations = th.cat([data.observations, data.observations.repeat_interleave(n, dim=0).repeat(3, 1)])
         actions = th.cat([data.actions, random_actions, policy_actions, next_policy_actions])
         # Importance weights: uniform density (1/2)^|A| on [-1, 1]^|A|, the policy's own density otherwise.
@@ -323,15 +338,13 @@ class CQL(OfflineSAC):
         inputs = th.cat([features, actions], dim=1)
         return [relu_mlp(inputs, parameters) for parameters in networks]  # type: ignore[arg-type]
 
-    def _sample_actions(self, observations: th.Tensor, n: int) -> tuple[th.Tensor, th.Tensor]:
-        """``n`` actions of the current policy per state (state-major order) and their log-densities.
+    def _sample_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, n: int) -> tuple[th.Tensor, th.Tensor]:
+        """``n`` actions per state (state-major order) of the policy whose ``get_action_dist_params`` gave
+        ``mean_actions`` and ``log_std``, and their log-densities.
 
-        The actor network runs once per state and only the sampling is repeated: the same distribution as running
-        it on ``n`` copies of each state, at a tenth of the cost.
+        Only the sampling is repeated: the same distribution as running the actor on ``n`` copies of each state, at
+        a fraction of the cost. (CQL has no gSDE: SB3 sets the policy's ``use_sde`` from the algorithm's, False.)
         """
-        if self.actor.use_sde:  # gSDE's noise depends on the latent features: sample from n copies of each state
-            return self.actor.action_log_prob(observations.repeat_interleave(n, dim=0))
-        mean_actions, log_std, _ = self.actor.get_action_dist_params(observations)
         mean_actions, log_std = mean_actions.repeat_interleave(n, dim=0), log_std.repeat_interleave(n, dim=0)
         return self.actor.action_dist.log_prob_from_params(mean_actions, log_std)
 
