@@ -5,7 +5,8 @@
 Configuration: batch 352, 3 x 256 networks, 10 sampled actions, Panda-sized data (29-D observations, 9-D
 actions), torch on ``--threads`` threads (2 by default). Each round measures, one after the other: our CQL, d3rlpy's
 CQL (in the interpreter given by ``--d3rlpy-python``, since d3rlpy pins gymnasium 1.0.0: make it with
-``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy``), SB3's SAC. Medians are reported.
+``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy``), SB3's SAC. Medians are reported, and for the
+ratios the median of the rounds' ratios (each measured back to back).
 
 The roofline: a CQL step pushes ``batch * (1 + 3 * n_actions)`` rows forward and backward through each of the two
 critics (~18.5 GFLOP at this configuration); divided into the GFLOP/s of an fp32 GEMM of the same shape it
@@ -157,10 +158,12 @@ def main() -> None:
     ours = statistics.median(results["ours"])
     print(f"our CQL:     {ours:6.2f} gradient steps/s ({ours / roofline:.0%} of the roofline)")
     if results["d3rlpy"]:
-        d3rlpy = statistics.median(results["d3rlpy"])
-        print(f"d3rlpy CQL:  {d3rlpy:6.2f} gradient steps/s; ours / d3rlpy = {ours / d3rlpy:.2f}")
-        retain = statistics.median(results["d3rlpy_retain"])
-        print(f"d3rlpy CQL with our allocator settings: {retain:6.2f} gradient steps/s; ours / that = {ours / retain:.2f}")
+        for key, name in (("d3rlpy", "d3rlpy CQL"), ("d3rlpy_retain", "d3rlpy CQL with our allocator settings")):
+            theirs = statistics.median(results[key])
+            # The machine's speed drifts between rounds: the ratio within each round (measured back to back) is
+            # steadier than the ratio of the medians.
+            ratio = statistics.median(o / t for o, t in zip(results["ours"], results[key], strict=True))
+            print(f"{name}: {theirs:6.2f} gradient steps/s; ours / theirs: {ratio:.2f} (median of the rounds' ratios)")
     print(f"SB3 SAC:     {statistics.median(results['sac']):6.2f} gradient steps/s")
     print(f"roofline:    {roofline:6.2f} steps/s ({cql_step_gflop():.1f} GFLOP a step at {gflops:.0f} GFLOP/s fp32 GEMM)")
     print("all rounds:", {key: [round(v, 2) for v in values] for key, values in results.items()}, file=sys.stderr)
