@@ -31,6 +31,10 @@ GRASP_Z_TOLERANCE = 0.01
 CLOSED_MARGIN = 0.004
 #: End-effector height the lift aims for (m), above the 0.4 m success height.
 LIFT_HEIGHT = 0.5
+#: With ``regrasp``: distance (m) between the closed hand and the object's centre beyond which the object counts as
+#: dropped (held, it is within ~1 cm), and the largest vertical distance at which the gripper may close.
+DROPPED_DISTANCE = 0.05
+CLOSING_Z_TOLERANCE = 0.03
 #: Hand orientation: pointing down with a fixed yaw (a cylinder needs no yaw tracking, and following the
 #: object's yaw flips the hand at +-pi/4).
 HAND_ORIENTATION = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw, rotation of pi about x
@@ -41,10 +45,11 @@ class PDController:
 
     Memoryless: the phase is read from the observation. With the gripper open it moves above the object,
     descends to it, and closes once aligned within the grasp tolerances; once the fingers have closed to
-    the object's width it lifts to ``LIFT_HEIGHT``. A dropped object is not regrasped (the fingers stay
-    closed), as in the thesis's controller. In ``"delta"`` mode the gripper's actions are +1 (open) or -1
-    (close). The "derivative" of the thesis's PID is ``k_d * error / dt``, a second proportional term: here
-    both are the single gain ``kp``.
+    the object's width it lifts to ``LIFT_HEIGHT``. By default a dropped object is not regrasped (the fingers
+    stay closed), as in the thesis's controller; with ``regrasp`` a closed hand more than ``DROPPED_DISTANCE``
+    from the object reopens and starts over above it (PandaForce-v0's knock-out). In ``"delta"`` mode the
+    gripper's actions are +1 (open) or -1 (close). The "derivative" of the thesis's PID is ``k_d * error / dt``, a
+    second proportional term: here both are the single gain ``kp``.
 
     Inverse kinematics runs on a robot in a DIRECT simulator of the controller's own, reset to the observed
     joints, so it never disturbs the environment's simulation.
@@ -53,14 +58,21 @@ class PDController:
     :param config: the env's configuration (object size, delta limits); the defaults if omitted.
     :param kp: proportional gain on the end-effector position error.
     :param max_step: largest end-effector move per step and axis (m).
+    :param regrasp: reopen and grasp again when the closed hand has lost the object.
     """
 
     def __init__(
-        self, action_mode: str = "absolute", config: GraspConfig | None = None, kp: float = KP, max_step: float = MAX_STEP
+        self,
+        action_mode: str = "absolute",
+        config: GraspConfig | None = None,
+        kp: float = KP,
+        max_step: float = MAX_STEP,
+        regrasp: bool = False,
     ) -> None:
         self.config = config or GraspConfig()
         self.kp = kp
         self.max_step = max_step
+        self.regrasp = regrasp
         self._sim = Simulator(self.config.sim_timestep)
         self.robot = Panda(self._sim, self.config, action_mode)
         self._closed_width = 2 * self.config.object_radius + CLOSED_MARGIN
@@ -84,6 +96,7 @@ class PDController:
             "closed_margin": CLOSED_MARGIN,
             "lift_height": LIFT_HEIGHT,
             "hand_orientation": HAND_ORIENTATION.tolist(),
+            **({"dropped_distance": DROPPED_DISTANCE, "closing_z_tolerance": CLOSING_Z_TOLERANCE} if self.regrasp else {}),
         }
 
     def predict(
@@ -111,7 +124,12 @@ class PDController:
         error = grasp_point - ee
         xy_error = np.abs(error[:2]).max()
         closing = width < GRIPPER_OPEN_WIDTH - 0.005 and xy_error < COARSE_XY_TOLERANCE
-        if width < self._closed_width:
+        if self.regrasp:  # a gripper reopening above the object is not closing on it
+            closing = closing and abs(error[2]) < CLOSING_Z_TOLERANCE
+        dropped = self.regrasp and width < self._closed_width and np.linalg.norm(error) > DROPPED_DISTANCE
+        if dropped:
+            target, fingers = obj + np.array([0.0, 0.0, HOVER_HEIGHT]), GRIPPER_OPEN_WIDTH / 2
+        elif width < self._closed_width:
             target, fingers = np.array([ee[0], ee[1], LIFT_HEIGHT]), 0.0
         elif closing or (xy_error < GRASP_XY_TOLERANCE and abs(error[2]) < GRASP_Z_TOLERANCE):
             target, fingers = grasp_point, 0.0

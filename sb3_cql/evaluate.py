@@ -2,9 +2,11 @@
 
     python -m sb3_cql.evaluate logs/cql/Panda-v0_1/best_model.zip --algo cql -n 100 --seed 0
     python -m sb3_cql.evaluate pid --env Panda-v0 PandaForce-v0 -n 100
+    python -m sb3_cql.evaluate pid-regrasp --env PandaForce-v0 -n 100      # the PD controller that regrasps
     python -m sb3_cql.evaluate logs/bc/Panda-v0_1/best_model.zip --algo bc --env-kwargs action_mode:"'delta'"
 
-``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...) or ``pid`` for the PD controller.
+``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...), ``pid`` for the PD controller or
+``pid-regrasp`` for the PD controller that reopens and grasps again when it has lost the object.
 Episodes are deterministic given ``--seed``: the env is reset with it once, and its own generator seeds the rest.
 """
 
@@ -22,6 +24,9 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
+
+#: The PD controllers by name, and their keywords.
+PD_CONTROLLERS = {"pid": {}, "pid-regrasp": {"regrasp": True}}
 
 
 def success_rate(
@@ -55,11 +60,11 @@ def success_rate(
 
 
 def load_policy(model: str, algo: str | None, env_id: str, env_kwargs: dict[str, Any] | None = None) -> Any:
-    """The PD controller for ``pid`` (for ``env_id`` made with ``env_kwargs``), else the SB3 model saved at
-    ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
-    if model == "pid":
+    """The PD controller for ``pid`` or ``pid-regrasp`` (for ``env_id`` made with ``env_kwargs``), else the SB3
+    model saved at ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
+    if model in PD_CONTROLLERS:
         env = gym.make(env_id, **(env_kwargs or {}))
-        controller = envs.PDController.for_env(env)
+        controller = envs.PDController.for_env(env, **PD_CONTROLLERS[model])
         env.close()
         return controller
     if algo is None:
@@ -77,7 +82,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m sb3_cql.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("model", help="path of a saved SB3 model, or pid")
+    parser.add_argument("model", help="path of a saved SB3 model, or pid, or pid-regrasp")
     parser.add_argument("--algo", default=None, help="RL-Zoo3 name of the model's algorithm (cql, sac, ...)")
     parser.add_argument("--env", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
     parser.add_argument("-n", "--n-episodes", type=int, default=100)
@@ -86,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, default={},
                         help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (the model's action mode)")  # fmt: skip
     args = parser.parse_args(argv)
-    model = None if args.model == "pid" else load_policy(args.model, args.algo, args.env[0])  # loaded once
+    model = None if args.model in PD_CONTROLLERS else load_policy(args.model, args.algo, args.env[0])  # loaded once
     for env_id in args.env:
         policy = (
             model if model is not None else load_policy(args.model, args.algo, env_id, args.env_kwargs)

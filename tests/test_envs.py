@@ -186,10 +186,11 @@ def run_pd(env: gym.Env, controller: envs.PDController, seed: int) -> tuple[bool
     return infos[-1]["is_success"], infos
 
 
+@pytest.mark.parametrize("regrasp", [False, True])
 @pytest.mark.parametrize("action_mode", ACTION_MODES)
-def test_pd_controller_solves_panda(action_mode, make_env):
+def test_pd_controller_solves_panda(action_mode, regrasp, make_env):
     env = make_env("Panda-v0", action_mode=action_mode)
-    controller = envs.PDController.for_env(env)
+    controller = envs.PDController.for_env(env, regrasp=regrasp)
     results = [run_pd(env, controller, seed) for seed in range(4)]
     assert all(success for success, _ in results)
     assert all(len(infos) < 300 for _, infos in results)
@@ -215,6 +216,15 @@ def test_force_knocks_the_object_out_once(make_env):
     success, infos = run_pd(env, controller, seed=0)
     assert sum(info["force_applied"] for info in infos) == 1
     assert not success
+
+
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+def test_regrasping_pd_controller_picks_the_knocked_out_object_up_again(action_mode, make_env):
+    env = make_env("PandaForce-v0", action_mode=action_mode)
+    # The episode the plain controller fails (test_force_knocks_the_object_out_once).
+    success, infos = run_pd(env, envs.PDController.for_env(env, regrasp=True), seed=0)
+    assert sum(info["force_applied"] for info in infos) == 1
+    assert success
 
 
 def test_pd_controller_works_with_sb3_evaluate_policy():

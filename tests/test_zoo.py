@@ -215,3 +215,10 @@ def test_the_pd_controller_is_evaluated_in_the_action_mode_given(capsys):
     assert "Panda-v0: success rate 1.000 over 2 episodes" in capsys.readouterr().out
     with pytest.raises(ValueError, match="action_mode"):
         main(["pid", "--env", "Panda-v0", "-n", "1", "--env-kwargs", "action_mode:'velocity'"])
+
+
+def test_pid_regrasp_names_the_regrasping_pd_controller():
+    from sb3_cql.evaluate import load_policy
+
+    assert load_policy("pid-regrasp", None, "PandaForce-v0").regrasp
+    assert not load_policy("pid", None, "PandaForce-v0").regrasp
