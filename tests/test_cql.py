@@ -199,6 +199,22 @@ def test_warm_start_learning_rate_decays_to_the_actors():
     np.testing.assert_allclose(rates, [1e-2 + 0.49 * (1e-4 - 1e-2), 1e-2 + 0.99 * (1e-4 - 1e-2), 1e-4, 1e-4], rtol=1e-6)
 
 
+def test_warm_start_continues_where_a_saved_model_left_it(tmp_path):
+    """RL-Zoo3 continues a checkpoint (``-i``) with ``learn`` counting timesteps from 0 again: the warm start still
+    ends ``bc_steps`` gradient steps after the model's first."""
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(200), batch_size=32, actor_learning_rate=1e-4,
+                bc_steps=100, bc_learning_rate=1e-2, policy_kwargs=TINY, seed=0)  # fmt: skip
+    model.learn(60)
+    model.save(tmp_path / "checkpoint.zip")
+    model = CQL.load(tmp_path / "checkpoint.zip", env=gym.make("Pendulum-v1"), buffer_size=200)
+    model.replay_buffer = random_pendulum_buffer(200)
+    model.learn(30)  # reset_num_timesteps=True, as the zoo's
+    assert model.num_timesteps == 30
+    np.testing.assert_allclose(model.actor.optimizer.param_groups[0]["lr"], 1e-2 + 0.89 * (1e-4 - 1e-2), rtol=1e-6)
+    model.learn(20)
+    assert model.actor.optimizer.param_groups[0]["lr"] == pytest.approx(1e-4)  # the Q phase after 110 steps
+
+
 def test_critics_learn_the_scaled_and_shifted_reward():
     """With ``reward_scale`` and ``reward_bias`` the critics fit ``scale * r + bias`` (one-step episodes: Q is the
     reward), while the buffer keeps the data's rewards."""

@@ -68,7 +68,8 @@ class CQL(OfflineSAC):
     :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
-    :param bc_steps: gradient steps at the start whose actor loss is behaviour cloning in place of the Q-value (the
+    :param bc_steps: gradient steps at the start of training (counted across ``learn`` calls and ``save``/``load``)
+        whose actor loss is behaviour cloning in place of the Q-value (the
         deterministic action fitted to the data actions by least squares), next to the entropy term, which sets the
         spread alone (through the log-std head); the critics train as usual meanwhile.
     :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
@@ -217,7 +218,7 @@ class CQL(OfflineSAC):
             critic_loss.backward()
             self.critic.optimizer.step()
 
-            if self.num_timesteps < self.bc_steps:
+            if self._in_warm_start():
                 # Behaviour-cloning warm start: in SAC's actor loss, imitation in place of Q. The deterministic action
                 # is fitted by least squares (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is biased
                 # when data actions saturate at +-1, as the gripper's do); the spread is SAC's, set by the entropy
@@ -253,12 +254,18 @@ class CQL(OfflineSAC):
         for key, values in logs.items():
             self.logger.record(key, float(np.mean(values)))
 
+    def _in_warm_start(self) -> bool:
+        """Whether the next gradient step is one of the first ``bc_steps`` of the model's training. Counted in gradient
+        steps made (``_n_updates``, saved with the model), not ``num_timesteps``: RL-Zoo3 continues a saved model
+        (``-i``) with the count of timesteps restarted at 0."""
+        return self._n_updates < self.bc_steps
+
     def _actor_learning_rate(self) -> float:
         """The actor's schedule, or during the warm start the linear decay from ``bc_learning_rate`` to it."""
         learning_rate = self.actor_lr_schedule(self._current_progress_remaining)
-        if self.bc_learning_rate is None or self.num_timesteps >= self.bc_steps:
+        if self.bc_learning_rate is None or not self._in_warm_start():
             return learning_rate
-        fraction = self.num_timesteps / self.bc_steps
+        fraction = self._n_updates / self.bc_steps
         return self.bc_learning_rate + fraction * (learning_rate - self.bc_learning_rate)
 
     def _imitation_dist_params(self, observations: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
