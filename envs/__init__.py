@@ -7,7 +7,7 @@ import gymnasium
 
 from envs.config import GraspConfig
 from envs.panda_env import OBSERVATION_SLICES, PandaGraspEnv
-from envs.pd_controller import PDController
+from envs.pd_controller import CONTROLLERS, PDController
 
 #: The registered ids and the keywords that make each task (everything else is :class:`GraspConfig`'s default).
 ENV_IDS = {
@@ -25,4 +25,4 @@ for _env_id, _kwargs in ENV_IDS.items():
             _env_id, entry_point="envs.panda_env:PandaGraspEnv", max_episode_steps=MAX_EPISODE_STEPS, kwargs=_kwargs
         )
 
-__all__ = ["ENV_IDS", "MAX_EPISODE_STEPS", "OBSERVATION_SLICES", "GraspConfig", "PDController", "PandaGraspEnv"]
+__all__ = ["CONTROLLERS", "ENV_IDS", "MAX_EPISODE_STEPS", "OBSERVATION_SLICES", "GraspConfig", "PDController", "PandaGraspEnv"]

@@ -38,6 +38,8 @@ CLOSING_Z_TOLERANCE = 0.03
 #: Hand orientation: pointing down with a fixed yaw (a cylinder needs no yaw tracking, and following the
 #: object's yaw flips the hand at +-pi/4).
 HAND_ORIENTATION = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw, rotation of pi about x
+#: The controller's names (behaviour policies, evaluation, the benchmark's rows) and the keywords of each.
+CONTROLLERS = {"pid": {}, "pid-regrasp": {"regrasp": True}}
 
 
 class PDController:

@@ -25,9 +25,6 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
 
-#: The PD controllers by name, and their keywords.
-PD_CONTROLLERS = {"pid": {}, "pid-regrasp": {"regrasp": True}}
-
 
 def success_rate(
     policy: Any,
@@ -62,9 +59,9 @@ def success_rate(
 def load_policy(model: str, algo: str | None, env_id: str, env_kwargs: dict[str, Any] | None = None) -> Any:
     """The PD controller for ``pid`` or ``pid-regrasp`` (for ``env_id`` made with ``env_kwargs``), else the SB3
     model saved at ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
-    if model in PD_CONTROLLERS:
+    if model in envs.CONTROLLERS:
         env = gym.make(env_id, **(env_kwargs or {}))
-        controller = envs.PDController.for_env(env, **PD_CONTROLLERS[model])
+        controller = envs.PDController.for_env(env, **envs.CONTROLLERS[model])
         env.close()
         return controller
     if algo is None:
@@ -91,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, default={},
                         help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (the model's action mode)")  # fmt: skip
     args = parser.parse_args(argv)
-    model = None if args.model in PD_CONTROLLERS else load_policy(args.model, args.algo, args.env[0])  # loaded once
+    model = None if args.model in envs.CONTROLLERS else load_policy(args.model, args.algo, args.env[0])  # loaded once
     for env_id in args.env:
         policy = (
             model if model is not None else load_policy(args.model, args.algo, env_id, args.env_kwargs)

@@ -1,5 +1,7 @@
 """Collection of Minari datasets and their loading into SB3's ReplayBuffer."""
 
+import json
+
 import gymnasium as gym
 import minari
 import numpy as np
@@ -7,8 +9,9 @@ import pytest
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 
-import envs  # noqa: F401  (registers the tasks)
+import envs
 from sb3_cql.data import (
+    DEFAULT_NOISE,
     CollectionSpec,
     DatasetError,
     collect_dataset,
@@ -79,6 +82,16 @@ def test_delta_mode_dataset_has_its_own_id_and_unit_actions():
     assert dataset.spec.dataset_id == "sb3cql/Panda-v0/pid-delta-v0"
     assert np.abs(dataset[0].actions).max() <= 1.0
     assert dataset.recover_environment().unwrapped.action_mode == "delta"
+
+
+def test_regrasping_policies_collect_with_the_regrasping_pd_controller():
+    spec = CollectionSpec(policy="noisy-regrasp", n_episodes=1)
+    assert spec.noise == DEFAULT_NOISE and spec.controller == "pid-regrasp"
+    assert CollectionSpec(policy="noisy").controller == "pid" and CollectionSpec(policy="random").controller is None
+    dataset = ensure_dataset("sb3cql/Panda-v0/noisy-regrasp-delta-v0", n_episodes=1, progress_bar=False)
+    assert json.loads(dataset.storage.metadata["controller"])["dropped_distance"] == envs.pd_controller.DROPPED_DISTANCE
+    plain = collect_dataset(CollectionSpec(n_episodes=1), progress_bar=False)
+    assert "dropped_distance" not in json.loads(plain.storage.metadata["controller"])
 
 
 def test_existing_dataset_is_not_overwritten_without_asking():

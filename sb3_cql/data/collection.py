@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 import envs
 from sb3_cql.data import ids
-from sb3_cql.data.ids import DEFAULT_NOISE, POLICIES
+from sb3_cql.data.ids import DEFAULT_NOISE, NOISY_POLICIES, POLICIES
 from sb3_cql.data.replay import load_dataset
 
 #: Episodes written to disk at a time: the most an interruption can lose.
@@ -48,12 +48,13 @@ class CollectionSpec:
     """What a dataset is made of; two collections with equal specs write identical data.
 
     :param env_id: gymnasium id of the task.
-    :param policy: ``"pid"``, ``"noisy"`` (PD with Gaussian noise on the executed arm targets), ``"random"``
+    :param policy: ``"pid"``, ``"noisy"`` (PD with Gaussian noise on the executed arm targets), ``"pid-regrasp"``
+        and ``"noisy-regrasp"`` (the same with the PD controller that grasps a lost object again), ``"random"``
         (uniform actions), or the path of a saved SB3 model.
     :param n_episodes: number of episodes.
     :param seed: episode ``i`` is reset with ``seed + i``.
     :param noise: standard deviation (rad) of the noise on the executed arm joint targets; ``None`` means
-        0.03 for ``"noisy"`` and 0 otherwise.
+        0.03 for the noisy policies and 0 otherwise.
     :param env_kwargs: keywords for ``gymnasium.make`` (``action_mode``, physics).
     :param algo: the SB3 algorithm of a model policy, a key of RL-Zoo3's ``ALGOS`` (``"sac"``, ``"cql"``...).
     """
@@ -74,9 +75,15 @@ class CollectionSpec:
         if self.n_episodes < 1:
             raise ValueError(f"n_episodes must be >= 1, got {self.n_episodes}")
         if self.noise is None:
-            object.__setattr__(self, "noise", DEFAULT_NOISE if self.policy == "noisy" else 0.0)
+            object.__setattr__(self, "noise", DEFAULT_NOISE if self.policy in NOISY_POLICIES else 0.0)
         if self.noise < 0:
             raise ValueError(f"noise must be >= 0, got {self.noise}")
+
+    @property
+    def controller(self) -> str | None:
+        """The name of the PD controller behind the policy (a key of ``envs.CONTROLLERS``), if it is one."""
+        name = NOISY_POLICIES.get(self.policy, self.policy)
+        return name if name in envs.CONTROLLERS else None
 
     @property
     def action_mode(self) -> str:
@@ -92,8 +99,8 @@ def make_policy(spec: CollectionSpec, env: gym.Env) -> Policy:
     action_space = env.action_space
     if spec.policy == "random":
         return lambda observation, rng: (rng.uniform(action_space.low, action_space.high).astype(np.float32), None)
-    if spec.policy in POLICIES:
-        predict = envs.PDController.for_env(env).predict
+    if spec.controller is not None:
+        predict = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller]).predict
     else:
         from rl_zoo3.utils import ALGOS
 
@@ -347,6 +354,7 @@ def _metadata(dataset_id: str, spec: CollectionSpec, successes: list[bool], env:
         "collection": spec.to_json(),
         "success_rate": float(np.mean(successes)),
     }
-    if spec.policy in ("pid", "noisy"):
-        metadata["controller"] = json.dumps(envs.PDController.for_env(env).parameters())
+    if spec.controller is not None:
+        controller = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller])
+        metadata["controller"] = json.dumps(controller.parameters())
     return metadata

@@ -9,8 +9,12 @@ from minari.storage import get_dataset_path
 
 #: Minari namespace of every dataset this package writes.
 NAMESPACE = "sb3cql"
-#: Behaviour policies that :func:`~sb3_cql.data.collect_dataset` knows by name.
-POLICIES = ("pid", "noisy", "random")
+#: Behaviour policies that :func:`~sb3_cql.data.collect_dataset` knows by name: the PD controllers
+#: (``envs.CONTROLLERS``: ``pid``, and ``pid-regrasp`` that grasps a lost object again), each with Gaussian noise on
+#: its arm targets (``noisy``, ``noisy-regrasp``), and uniform random actions.
+POLICIES = ("pid", "noisy", "pid-regrasp", "noisy-regrasp", "random")
+#: The noisy policies and the PD controller under each one's noise.
+NOISY_POLICIES = {"noisy": "pid", "noisy-regrasp": "pid-regrasp"}
 #: Standard deviation (rad) of the Gaussian noise the ``noisy`` policy adds to the PD controller's arm targets.
 DEFAULT_NOISE = 0.03
 
