@@ -45,8 +45,8 @@ def bench(tmp_path_factory) -> Bench:
 
 @pytest.fixture(scope="module")
 def quick(bench) -> tuple[Path, str]:
-    """CQL, BC, SAC and the PD controller through the whole protocol: 200 steps, evaluated and saved every 100."""
-    args = ["--algos", "cql", "bc", "sac", "pid", "--n-timesteps", "200", "--eval-freq", "100", "--save-freq", "100",
+    """CQL, BC, SAC and the PD controllers through the whole protocol: 200 steps, evaluated and saved every 100."""
+    args = ["--algos", "cql", "bc", "sac", "pid", "pid-regrasp", "--n-timesteps", "200", "--eval-freq", "100", "--save-freq", "100",
             "--results-dir", "quick", *TINY]  # fmt: skip
     output = bench.run(*args).stdout
     return bench.root / "quick", output
@@ -57,12 +57,13 @@ def test_protocol_records_every_unit_and_makes_the_table_and_figures(quick):
     assert "[train cql seed 117] done: 200 steps in 1 segment(s)" in output
     report = json.loads((results / "results.json").read_text())
     rows = {(r["algo"], r["seed"], r["task"]) for r in report["evaluations"]}
-    assert rows == {(algo, 117, task) for algo in ("cql", "bc", "sac", "pid") for task in TASKS}
+    assert rows == {(algo, 117, task) for algo in ("cql", "bc", "sac", "pid", "pid-regrasp") for task in TASKS}
     for record in report["evaluations"]:
         assert record["episodes"] == 1 and 0.0 <= record["success_rate"] <= 1.0
-        if record["algo"] != "pid":
+        if record["algo"] not in ("pid", "pid-regrasp"):
             assert record["training_steps"] == 200 and record["best_step"] in (100, 200)
     assert report["summary"]["pid"]["Panda-v0"]["mean"] == 1.0
+    assert report["summary"]["pid-regrasp"]["Panda-v0"]["mean"] == 1.0
     assert set(report["summary"]["cql"]["Panda-v0"]) >= {"mean", "std", "iqm", "iqm_ci95", "seeds"}
     assert report["settings"]["n_timesteps"] == 200
     system = report["system"]
@@ -73,9 +74,9 @@ def test_protocol_records_every_unit_and_makes_the_table_and_figures(quick):
 
     csv_lines = (results / "results.csv").read_text().splitlines()
     assert csv_lines[0].startswith("algo,seed,task,success_rate,episodes,best_step,training_steps")
-    assert len(csv_lines) == 1 + 12
+    assert len(csv_lines) == 1 + 15
     table = (results / "table.md").read_text()
-    for row in ("| CQL |", "| BC |", "| PID |", "| SAC |"):
+    for row in ("| CQL |", "| BC |", "| PID |", "| PID-REGRASP |", "| SAC |"):
         assert table.count(row) == 2  # mean ± std, and IQM [CI]
     assert table.index("| CQL |") < table.index("| PID |") < table.index("| SAC |")  # the thesis's order
     assert training["bc"]["env_kwargs"] == {"action_mode": "delta"} and training["bc"]["training_steps"] == 200

@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m sb3_cql.benchmark", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--algos", nargs="+", default=list(DEFAULT_ALGOS), help="RL-Zoo3 algorithms, and pid")
+    parser.add_argument("--algos", nargs="+", default=list(DEFAULT_ALGOS), help="RL-Zoo3 algorithms, and pid, pid-regrasp")
     parser.add_argument("--seeds", nargs="+", type=int, default=None, help=f"default: {' '.join(map(str, THESIS_SEEDS))}")
     parser.add_argument("--tasks", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
     parser.add_argument("--results-dir", default="results")

@@ -18,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
+import envs  # noqa: E402
 from sb3_cql.benchmark.records import ResultsFolder  # noqa: E402
 from sb3_cql.benchmark.report import algo_order  # noqa: E402
 from sb3_cql.benchmark.runs import Run  # noqa: E402
@@ -190,8 +191,8 @@ def make_figures(results: ResultsFolder, report: dict[str, Any], filmstrips: boo
         for task in tasks:
             policies = {}
             for algo in algo_order([*first_runs, *summary]):
-                if algo == "pid":
-                    policies["PID"] = load_policy("pid", None, task), {}
+                if algo in envs.CONTROLLERS:
+                    policies[algo.upper()] = load_policy(algo, None, task), {}
                 elif algo in first_runs:
                     record = first_runs[algo]
                     model = load_policy(str(results.root / record["best_model"]), algo, task)

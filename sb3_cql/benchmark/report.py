@@ -15,7 +15,7 @@ import numpy as np
 from sb3_cql.benchmark.records import ResultsFolder, read_json, write_json, write_text
 
 #: Rows of the table in the thesis's order (then any other algorithm), and how they are printed.
-ROW_ORDER = ("cql", "bc", "pid", "sac")
+ROW_ORDER = ("cql", "bc", "pid", "pid-regrasp", "sac")
 #: Bootstrap resamples of the interval estimates; the generator's seed, so a report is made again identically.
 BOOTSTRAP_REPS, BOOTSTRAP_SEED = 2000, 0
 #: Columns of ``results.csv``: one row per final evaluation, with the run and the machine.
@@ -82,8 +82,9 @@ def markdown_table(summary: dict[str, dict[str, Any]], tasks: list[str], episode
     header = "| | " + " | ".join(tasks) + " |\n|---|" + "---|" * len(tasks) + "\n"
     seeds = sorted({len(summary[algo][task]["seeds"]) for algo in summary for task in tasks})
     lines = [
-        f"Success rate of the best model of each run (PID: the PD controller) over {episodes} episodes per task, "
-        f"mean ± standard deviation over seeds (seeds per row: {'/'.join(map(str, seeds)) or 0}).",
+        f"Success rate of the best model of each run (PID: the thesis's PD controller; PID-REGRASP: ours, whose noisy "
+        f"runs are the data) over {episodes} episodes per task, mean ± standard deviation over seeds (seeds per row: "
+        f"{'/'.join(map(str, seeds)) or 0}).",
         "",
         header.rstrip("\n"),
     ]

@@ -25,10 +25,11 @@ from sb3_cql.benchmark.runs import Run
 TRAIN_ENV = "Panda-v0"
 #: The thesis's five seeds.
 THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
-#: The scripted PD controller: evaluated, never trained.
-SCRIPTED = "pid"
-#: Rows of the thesis's Table 5.1, and BC.
-DEFAULT_ALGOS = ("cql", "bc", SCRIPTED, "sac")
+#: The scripted PD controllers (the thesis's, and ours that regrasps, whose noisy runs are the data): evaluated,
+#: never trained.
+SCRIPTED = tuple(envs.CONTROLLERS)
+#: Rows of the thesis's Table 5.1, BC, and the regrasping PD controller.
+DEFAULT_ALGOS = ("cql", "bc", *SCRIPTED, "sac")
 #: Lines of a failed zoo run's log shown in the error.
 LOG_TAIL_LINES = 40
 
@@ -75,7 +76,7 @@ class Protocol:
     """The whole protocol: which algorithms and seeds, where, with how many workers.
 
     :param results: the results folder.
-    :param algos: RL-Zoo3 names of the algorithms, and ``pid`` for the PD controller.
+    :param algos: RL-Zoo3 names of the algorithms, and ``pid`` / ``pid-regrasp`` for the PD controllers.
     :param seeds: training and evaluation seeds.
     :param tasks: evaluation tasks.
     :param settings: the settings the numbers depend on.
@@ -102,10 +103,10 @@ class Protocol:
             raise BenchmarkError(f"unknown task(s) {unknown_tasks}: choose among {list(envs.ENV_IDS)}")
         own_config = any(arg.startswith(("--conf-file", "-conf")) for arg in self.settings.zoo_args)
         for algo in self.algos:
-            if algo == SCRIPTED:
+            if algo in SCRIPTED:
                 continue
             if algo not in ALGOS:
-                raise BenchmarkError(f"unknown algo {algo!r}: one of {sorted([*ALGOS, SCRIPTED])}")
+                raise BenchmarkError(f"unknown algo {algo!r}: one of {sorted([*ALGOS, *SCRIPTED])}")
             if not own_config and config_file(algo, TRAIN_ENV) is None:
                 raise BenchmarkError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
 
@@ -215,12 +216,12 @@ def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int |
 
         torch.set_num_threads(threads)
     results, settings = protocol.results, protocol.settings
-    training = None if algo == SCRIPTED else read_json(results.training_record(algo, seed))
-    if algo != SCRIPTED and training is None:
+    training = None if algo in SCRIPTED else read_json(results.training_record(algo, seed))
+    if algo not in SCRIPTED and training is None:
         raise BenchmarkError(f"{algo} seed {seed} is not trained yet")
     start = time.time()
-    if training is None:  # the thesis's controller, in the tasks' default (absolute) action mode
-        policy, env_kwargs = load_policy(SCRIPTED, None, task), {}
+    if training is None:  # a PD controller, in the tasks' default (absolute) action mode
+        policy, env_kwargs = load_policy(algo, None, task), {}
     else:  # in the envs it was trained in (its action mode)
         policy, env_kwargs = load_policy(str(results.root / training["best_model"]), algo, task), training["env_kwargs"]
     rate = success_rate(policy, task, settings.episodes, seed, env_kwargs=env_kwargs)
@@ -282,8 +283,8 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
 
             for seed in protocol.seeds:
                 for algo in protocol.algos:
-                    if algo == SCRIPTED or results.training_record(algo, seed).is_file():
-                        if algo != SCRIPTED:
+                    if algo in SCRIPTED or results.training_record(algo, seed).is_file():
+                        if algo not in SCRIPTED:
                             counts["skipped"] += 1
                             print(f"[train {algo} seed {seed}] skipped: recorded", flush=True)
                         submit_evaluations(algo, seed)
