@@ -2,6 +2,7 @@
 
     python examples/pd_controller.py --env Panda-v0 --n-episodes 100 --video-folder videos
     python examples/pd_controller.py --env Panda-v0 PandaForce-v0 --n-episodes 5 --video-folder videos
+    python examples/pd_controller.py --env PandaForce-v0 --regrasp --video-folder videos   # grasps a lost object again
 
 Headless: frames come from PyBullet's software renderer, so no display is needed.
 """
@@ -25,13 +26,15 @@ def evaluate_pd_controller(
     action_mode: str = "absolute",
     video_folder: str | None = None,
     n_videos: int = 1,
+    regrasp: bool = False,
 ) -> list[bool]:
     """Run the PD controller for ``n_episodes`` episodes (episode ``i`` reset with ``seed + i``) and return
-    the success of each; with ``video_folder``, the first ``n_videos`` episodes are saved as MP4 there."""
+    the success of each; with ``video_folder``, the first ``n_videos`` episodes are saved as MP4 there. With
+    ``regrasp``, the controller reopens and grasps again when it has lost the object."""
     env = gym.make(env_id, action_mode=action_mode, render_mode="rgb_array" if video_folder else None)
     if video_folder:
         env = RecordVideo(env, video_folder, episode_trigger=lambda episode: episode < n_videos, name_prefix=f"pd-{env_id}")
-    controller = envs.PDController.for_env(env)
+    controller = envs.PDController.for_env(env, regrasp=regrasp)
     successes = []
     with tqdm(range(n_episodes), desc=f"PD on {env_id}", unit="episode") as episodes:
         for episode in episodes:
@@ -56,13 +59,15 @@ def main() -> None:
     parser.add_argument("--action-mode", default="absolute", choices=["absolute", "delta"])
     parser.add_argument("--video-folder", default=None, help="save the first episodes as MP4 here")
     parser.add_argument("--n-videos", type=int, default=1)
+    parser.add_argument("--regrasp", action="store_true", help="the controller that grasps a lost object again")
     args = parser.parse_args()
     for env_id in args.env:
         successes = evaluate_pd_controller(
-            env_id, args.n_episodes, args.seed, args.action_mode, args.video_folder, args.n_videos
+            env_id, args.n_episodes, args.seed, args.action_mode, args.video_folder, args.n_videos, args.regrasp
         )
         rate = np.mean(successes)
-        print(f"PD controller on {env_id} ({args.action_mode}): success rate {rate:.3f} over {len(successes)} episodes")
+        name = "regrasping PD controller" if args.regrasp else "PD controller"
+        print(f"{name} on {env_id} ({args.action_mode}): success rate {rate:.3f} over {len(successes)} episodes")
     if args.video_folder:
         print(f"video(s) saved in {args.video_folder}/")
 

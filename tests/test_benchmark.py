@@ -19,7 +19,7 @@ TINY = ["--zoo-args", "--hyperparams batch_size:64 policy_kwargs:dict(net_arch=[
 
 
 class Bench:
-    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-delta-v0``, our configs'."""
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-regrasp-delta-v0``, our configs'."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -39,15 +39,15 @@ class Bench:
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory) -> Bench:
     bench = Bench(tmp_path_factory.mktemp("bench"))
-    bench.run("collect", "--policy", "noisy", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
+    bench.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
     return bench
 
 
 @pytest.fixture(scope="module")
 def quick(bench) -> tuple[Path, str]:
     """CQL, BC, SAC and the PD controllers through the whole protocol: 200 steps, evaluated and saved every 100."""
-    args = ["--algos", "cql", "bc", "sac", "pid", "pid-regrasp", "--n-timesteps", "200", "--eval-freq", "100", "--save-freq", "100",
-            "--results-dir", "quick", *TINY]  # fmt: skip
+    args = ["--algos", "cql", "bc", "sac", "pid", "pid-regrasp", "--n-timesteps", "200", "--eval-freq", "100",
+            "--save-freq", "100", "--results-dir", "quick", *TINY]  # fmt: skip
     output = bench.run(*args).stdout
     return bench.root / "quick", output
 

@@ -17,7 +17,7 @@ TINY = ["--hyperparams", "batch_size:64", "policy_kwargs:dict(net_arch=[32, 32])
 
 
 class Zoo:
-    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-delta-v0``, our configs'."""
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-regrasp-delta-v0``, our configs'."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -36,7 +36,7 @@ class Zoo:
 @pytest.fixture(scope="module")
 def zoo(tmp_path_factory) -> Zoo:
     zoo = Zoo(tmp_path_factory.mktemp("zoo"))
-    zoo.run("collect", "--policy", "noisy", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
+    zoo.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
     return zoo
 
 
@@ -82,7 +82,8 @@ def test_zoo_training_logs_evaluations_tensorboard_and_checkpoints(trained):
     assert evaluations["results"].shape == (2, 2) and evaluations["successes"].shape == (2, 2)
     assert (trained / "best_model.zip").is_file() and (trained / "Panda-v0.zip").is_file()
     config = yaml.unsafe_load((trained / "Panda-v0" / "config.yml").read_text())
-    assert dict(config)["dataset"] == "sb3cql/Panda-v0/noisy-delta-v0"  # hyperparams/cql.yml, found without --conf-file
+    # hyperparams/cql.yml, found without --conf-file
+    assert dict(config)["dataset"] == "sb3cql/Panda-v0/noisy-regrasp-delta-v0"
 
     (events,) = (trained.parents[2] / "tb" / "Panda-v0").glob("CQL_1/events.out.tfevents.*")
     tags = EventAccumulator(str(events)).Reload().Tags()["scalars"]
@@ -139,7 +140,8 @@ def test_console_script_with_an_explicit_config_file(zoo):
     rl_zoo3 = shutil.which("rl_zoo3")
     assert rl_zoo3 is not None
     (zoo.root / "mine.yml").write_text(
-        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 20\n  dataset: sb3cql/Panda-v0/noisy-delta-v0\n  batch_size: 16\n"
+        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 20\n  dataset: sb3cql/Panda-v0/noisy-regrasp-delta-v0\n"
+        "  batch_size: 16\n"
         "  env_kwargs: {action_mode: delta}\n  policy_kwargs: 'dict(net_arch=[8])'\n"
     )
     zoo.run(rl_zoo3, "train", "--algo", "cql", "--env", "Panda-v0", "-n", "20", "--eval-freq", "-1", "-f", "mine",
@@ -151,11 +153,11 @@ def test_console_script_with_an_explicit_config_file(zoo):
 def test_sac_baseline_starts_from_the_dataset(zoo):
     output = zoo.run("--algo", "sac", "--env", "Panda-v0", "-n", "30", "--eval-freq", "-1", "-f", "sac", *TINY,
                      "learning_starts:10", "callback:[{'sb3_cql.callbacks.PrefillReplayBuffer': "
-                     "{'dataset': 'sb3cql/Panda-v0/noisy-delta-v0', 'verbose': 1}}]")  # fmt: skip
+                     "{'dataset': 'sb3cql/Panda-v0/noisy-regrasp-delta-v0', 'verbose': 1}}]")  # fmt: skip
     size = zoo.python(
-        "from sb3_cql.data import load_dataset; print(load_dataset('sb3cql/Panda-v0/noisy-delta-v0').total_steps)"
+        "from sb3_cql.data import load_dataset; print(load_dataset('sb3cql/Panda-v0/noisy-regrasp-delta-v0').total_steps)"
     )
-    assert f"Replay buffer: {size} transitions from sb3cql/Panda-v0/noisy-delta-v0" in output
+    assert f"Replay buffer: {size} transitions from sb3cql/Panda-v0/noisy-regrasp-delta-v0" in output
 
 
 def test_tuning_with_sqlite_storage(zoo):
