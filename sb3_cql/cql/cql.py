@@ -69,9 +69,9 @@ class CQL(OfflineSAC):
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
     :param bc_steps: gradient steps at the start of training (counted across ``learn`` calls and ``save``/``load``)
-        whose actor loss is behaviour cloning in place of the Q-value (the
-        deterministic action fitted to the data actions by least squares), next to the entropy term, which sets the
-        spread alone (through the log-std head); the critics train as usual meanwhile.
+        whose actor loss is behaviour cloning in place of the Q-value (the deterministic action fitted to the data
+        actions by least squares), next to the entropy term, which sets the spread alone (through the log-std head);
+        the critics train as usual meanwhile.
     :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
         ``bc_steps`` to ``actor_learning_rate`` (imitation needs a larger rate than following Q, and a clone settles
         only as its rate decays); ``None`` for ``actor_learning_rate`` throughout.
