@@ -167,8 +167,21 @@ def test_tuning_with_sqlite_storage(zoo):
             "--hyperparams", "policy_kwargs:dict(net_arch=[8])")  # fmt: skip
     trials = optuna.load_study(study_name="cql", storage=storage).get_trials(states=[optuna.trial.TrialState.COMPLETE])
     assert len(trials) == 2
-    assert set(trials[0].params) == {"cql_alpha", "learning_rate", "actor_learning_rate", "batch_size", "cql_n_actions",
-                                     "net_arch"}  # fmt: skip
+    for trial in trials:
+        sampled = {"cql_alpha", "learning_rate", "actor_learning_rate", "batch_size", "cql_n_actions", "net_arch",
+                   "bc_steps"} | ({"bc_learning_rate"} if trial.params["bc_steps"] > 0 else set())  # fmt: skip
+        assert set(trial.params) == sampled
+
+
+@pytest.mark.parametrize("bc_steps", [0, 5000])
+def test_the_search_space_samples_a_warm_start_learning_rate_only_for_a_warm_start(bc_steps):
+    from sb3_cql.zoo.search_space import sample_cql_params
+
+    raw = {"cql_alpha": 5.0, "learning_rate": 3e-4, "actor_learning_rate": 3e-5, "batch_size": 352,
+           "cql_n_actions": 10, "net_arch": "large", "bc_steps": bc_steps, "bc_learning_rate": 1e-3}  # fmt: skip
+    params = sample_cql_params(optuna.trial.FixedTrial(raw), n_actions=9, n_envs=1, additional_args={})
+    assert params["bc_steps"] == bc_steps and params["policy_kwargs"] == {"net_arch": [256, 256, 256]}
+    assert ("bc_learning_rate" in params) == (bc_steps > 0)
 
 
 @pytest.mark.slow

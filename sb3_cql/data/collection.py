@@ -356,5 +356,8 @@ def _metadata(dataset_id: str, spec: CollectionSpec, successes: list[bool], env:
     }
     if spec.controller is not None:
         controller = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller])
-        metadata["controller"] = json.dumps(controller.parameters())
+        try:
+            metadata["controller"] = json.dumps(controller.parameters())
+        finally:
+            controller.close()
     return metadata

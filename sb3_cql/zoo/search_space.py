@@ -9,9 +9,14 @@ import optuna
 #: Network sizes by name, as in the zoo's off-policy samplers.
 NET_ARCHS = {"medium": [256, 256], "large": [256, 256, 256], "verybig": [512, 512, 512]}
 
+#: Lengths of the behaviour-cloning warm start, in gradient steps (0: none). The zoo's samplers do not see the
+#: training budget (``-n``); a warm start as long as the budget or longer makes the trial a pure imitation run.
+BC_STEPS = [0, 5000, 10000, 20000]
+
 
 def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
-    """Sample the conservative weight, both learning rates, batch size, sampled actions and network size."""
+    """Sample the conservative weight, both learning rates, batch size, sampled actions, network size and the
+    behaviour-cloning warm start (its length, and its starting learning rate when it has one)."""
     params = {
         "cql_alpha": trial.suggest_float("cql_alpha", 0.1, 20.0, log=True),
         "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
@@ -19,7 +24,10 @@ def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "batch_size": trial.suggest_categorical("batch_size", [128, 256, 352, 512]),
         "cql_n_actions": trial.suggest_categorical("cql_n_actions", [4, 10, 20]),
         "net_arch": trial.suggest_categorical("net_arch", list(NET_ARCHS)),
+        "bc_steps": trial.suggest_categorical("bc_steps", BC_STEPS),
     }
+    if params["bc_steps"] > 0:  # (without a warm start the rate is unused)
+        params["bc_learning_rate"] = trial.suggest_float("bc_learning_rate", 1e-4, 3e-3, log=True)
     return convert_cql_params(params)
 
 
