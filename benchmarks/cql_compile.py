@@ -16,15 +16,13 @@ import sys
 import time
 
 import torch as th
-from cql_speed import BATCH, HIDDEN, N_ACTIONS, make_env, random_buffer
+from cql_speed import BATCH, HIDDEN, N_ACTIONS, make_cql, setup
 
 from sb3_cql import CQL
 
 
 def make_model(env, buffer, compiled: bool) -> CQL:
-    model = CQL(
-        "MlpPolicy", env, dataset=buffer, batch_size=BATCH, cql_n_actions=N_ACTIONS, policy_kwargs={"net_arch": HIDDEN}
-    )
+    model = make_cql(env, buffer)
     if compiled:
         critic = th.compile(lambda observations, actions: list(model.critic(observations, actions)))
         model._critic_q_values = critic  # type: ignore[method-assign]
@@ -38,10 +36,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
-    th.set_num_threads(args.threads)
-    th.set_flush_denormal(True)
-    buffer, observation_space, action_space = random_buffer()
-    env = make_env(observation_space, action_space)
+    env, buffer = setup(args.threads)
     models = {"ours": make_model(env, buffer, False), "compiled": make_model(env, buffer, True)}
     results: dict[str, list[float]] = {name: [] for name in models}
     for _ in range(args.rounds):

@@ -84,10 +84,21 @@ def make_env(observation_space: spaces.Box, action_space: spaces.Box):
     return SpacesEnv()
 
 
+def setup(threads: int):
+    """Torch's threads, and the benchmark's env and data: ``(env, buffer)``."""
+    th.set_num_threads(threads)
+    th.set_flush_denormal(True)
+    buffer, observation_space, action_space = random_buffer()
+    return make_env(observation_space, action_space), buffer
+
+
+def make_cql(env, buffer: ReplayBuffer) -> CQL:
+    """Our CQL at the benchmark's configuration."""
+    return CQL("MlpPolicy", env, dataset=buffer, batch_size=BATCH, cql_n_actions=N_ACTIONS, policy_kwargs={"net_arch": HIDDEN})
+
+
 def ours_steps_per_s(env, buffer: ReplayBuffer, steps: int) -> float:
-    model = CQL(
-        "MlpPolicy", env, dataset=buffer, batch_size=BATCH, cql_n_actions=N_ACTIONS, policy_kwargs={"net_arch": HIDDEN}
-    )
+    model = make_cql(env, buffer)
     model.learn(5)
     start = time.perf_counter()
     model.learn(steps)
@@ -141,10 +152,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
-    th.set_num_threads(args.threads)
-    th.set_flush_denormal(True)
-    buffer, observation_space, action_space = random_buffer()
-    env = make_env(observation_space, action_space)
+    env, buffer = setup(args.threads)
     results: dict[str, list[float]] = {"ours": [], "d3rlpy": [], "d3rlpy_retain": [], "sac": []}
     for _ in range(args.rounds):
         results["ours"].append(ours_steps_per_s(env, buffer, args.steps))
