@@ -1,6 +1,7 @@
 """CQL with its actor started from a trained BC model: success (10 episodes, env seed 1000) every K gradient steps.
 
-Usage: python results/diagnostics/cql_from_clone.py BC_MODEL.zip STEPS K '{"batch_size": 128, "bc_steps": 3000, ...}'
+Usage: python results/diagnostics/cql_from_clone.py BC_MODEL.zip STEPS K '{"batch_size": 128, "bc_steps": 3000, ...}' [DATASET]
+(DATASET: the Minari id CQL trains on, sb3cql/Panda-v0/noisy-delta-v0 by default, session 4's data)
 (results/dataset_comparison.md, session 4 tables "Starting from a working clone" and after). Throwaway-grade.
 """
 
@@ -18,12 +19,11 @@ from sb3_cql.evaluate import success_rate
 
 th.set_num_threads(1)
 bc_path, steps, every, kwargs = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), json.loads(sys.argv[4])
+dataset = sys.argv[5] if len(sys.argv) > 5 else "sb3cql/Panda-v0/noisy-delta-v0"
 env_kwargs = {"action_mode": "delta"}
 env = gym.make("Panda-v0", **env_kwargs)
 bc = BC.load(bc_path)
-model = CQL(
-    "MlpPolicy", env, dataset="sb3cql/Panda-v0/noisy-delta-v0", policy_kwargs=dict(net_arch=[256, 256, 256]), seed=1, **kwargs
-)
+model = CQL("MlpPolicy", env, dataset=dataset, policy_kwargs=dict(net_arch=[256, 256, 256]), seed=1, **kwargs)
 model.actor.load_state_dict(bc.actor.state_dict())
 model.policy.actor.load_state_dict(bc.actor.state_dict())
 model.set_logger(configure("cql_from_clone_logs/" + str(int(time.time())), ["csv"]))
@@ -33,9 +33,18 @@ def ev():
     return success_rate(model, "Panda-v0", n_episodes=10, seed=1000, env_kwargs=env_kwargs)
 
 
+def spread():
+    """The policy's mean pre-tanh standard deviation per action dimension over 512 sampled states (the Q diagnostics
+    are in the CSV log: the logger's values are cleared when it writes)."""
+    data = model.replay_buffer.sample(512)
+    with th.no_grad():
+        _, log_std, _ = model.actor.get_action_dist_params(data.observations)
+    return log_std.exp().mean(0).numpy().round(2).tolist()
+
+
 print(0, ev(), flush=True)
 done = 0
 while done < steps:
     model.learn(every, reset_num_timesteps=False, log_interval=every)
     done += every
-    print(done, ev(), model.logger.name_to_value.get("train/cql_q_data"), flush=True)
+    print(done, ev(), "std", spread(), flush=True)
