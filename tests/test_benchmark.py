@@ -55,6 +55,8 @@ def quick(bench) -> tuple[Path, str]:
 def test_protocol_records_every_unit_and_makes_the_table_and_figures(quick):
     results, output = quick
     assert "[train cql seed 117] done: 200 steps in 1 segment(s)" in output
+    # One worker: a finished training's evaluations run before the trainings still waiting.
+    assert output.index("[eval cql seed 117 PandaPerturbed-v0] success rate") < output.index("[train bc seed 117] started")
     report = json.loads((results / "results.json").read_text())
     rows = {(r["algo"], r["seed"], r["task"]) for r in report["evaluations"]}
     assert rows == {(algo, 117, task) for algo in ("cql", "bc", "sac", "pid", "pid-regrasp") for task in TASKS}

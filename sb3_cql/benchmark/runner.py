@@ -10,7 +10,8 @@ import multiprocessing
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections import deque
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -240,6 +241,10 @@ def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int |
     return record
 
 
+#: A unit of work waiting for a worker: its name for the log, the function, its arguments.
+Unit = tuple[tuple[str, ...], Callable[..., dict[str, Any]], tuple[Any, ...]]
+
+
 @contextmanager
 def _exclusive(results: ResultsFolder) -> Iterator[None]:
     """One protocol process per results folder at a time."""
@@ -270,16 +275,26 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
             write_json(system, system_info())
         context = multiprocessing.get_context("spawn")  # workers start clean (no torch state, no inherited locks)
         with ProcessPoolExecutor(max_workers=protocol.workers, mp_context=context) as pool:
+            # Units wait here, not in the pool's own (first in, first out) queue, so that a finished training's
+            # evaluations go first: its results come as soon as possible, not after every other training.
+            waiting: deque[Unit] = deque()
             pending: dict[Future, tuple[str, ...]] = {}
 
-            def submit_evaluations(algo: str, seed: int) -> None:
+            def evaluations(algo: str, seed: int) -> list[Unit]:
+                units = []
                 for task in protocol.tasks:
                     name = ("eval", algo, f"seed {seed}", task)
                     if results.evaluation_record(algo, seed, task).is_file():
                         counts["skipped"] += 1
                         print(f"[{' '.join(name)}] skipped: recorded", flush=True)
                     else:
-                        pending[pool.submit(evaluate, protocol, algo, seed, task, threads)] = name
+                        units.append((name, evaluate, (protocol, algo, seed, task, threads)))
+                return units
+
+            def submit() -> None:
+                while waiting and len(pending) < protocol.workers:
+                    name, function, arguments = waiting.popleft()
+                    pending[pool.submit(function, *arguments)] = name
 
             for seed in protocol.seeds:
                 for algo in protocol.algos:
@@ -287,10 +302,11 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                         if algo not in SCRIPTED:
                             counts["skipped"] += 1
                             print(f"[train {algo} seed {seed}] skipped: recorded", flush=True)
-                        submit_evaluations(algo, seed)
+                        waiting.extend(evaluations(algo, seed))
                     else:
                         print(f"[train {algo} seed {seed}] queued, log {results.training_log(algo, seed)}", flush=True)
-                        pending[pool.submit(train, protocol, algo, seed, threads)] = ("train", algo, f"seed {seed}")
+                        waiting.append((("train", algo, f"seed {seed}"), train, (protocol, algo, seed, threads)))
+            submit()
             while pending:
                 finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for future in finished:
@@ -310,10 +326,11 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                         wall = _seconds(record["train_wall_time_s"])
                         print(f"{label} done: {record['training_steps']} steps in {len(record['segments'])} segment(s), "
                               f"{best} at step {record['best_step']}, {wall}", flush=True)  # fmt: skip
-                        submit_evaluations(record["algo"], record["seed"])
+                        waiting.extendleft(reversed(evaluations(record["algo"], record["seed"])))
                     else:
                         print(f"{label} success rate {record['success_rate']:.3f} over {record['episodes']} episodes, "
                               f"{_seconds(record['eval_wall_time_s'])}", flush=True)  # fmt: skip
+                submit()
     if failures:
         raise UnitsFailed(f"{len(failures)} unit(s) failed:\n" + "\n".join(failures))
     return counts
