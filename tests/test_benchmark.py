@@ -1,5 +1,6 @@
 """The protocol command, ``python -m sb3_cql.benchmark``, end to end with the real zoo on a 4-episode dataset."""
 
+import contextlib
 import json
 import os
 import signal
@@ -149,3 +150,38 @@ def test_a_killed_training_resumes_from_its_checkpoint(bench):
     best_step, best_rate, best_path = run.best_model()
     assert best_rate == rates.max() and best_step == steps[rates.argmax()] and record["best_step"] == best_step
     assert run.scalars("train/actor_loss")[0].max() <= 300
+
+
+def _zoo_runs(marker: str) -> list[int]:
+    """Process ids of the live ``rl_zoo3.train`` processes whose command line holds ``marker``."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            command = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode() if proc.name.isdigit() else ""
+        except OSError:  # gone meanwhile
+            continue
+        if "rl_zoo3.train" in command and marker in command:
+            pids.append(int(proc.name))
+    return pids
+
+
+def test_a_killed_runner_takes_its_workers_and_zoo_runs_along(bench):
+    args = ["--algos", "cql", "--tasks", "Panda-v0", "--n-timesteps", "100000", "--results-dir", "orphans",
+            "--no-filmstrips", *TINY]  # fmt: skip
+    marker = str(bench.root / "orphans")
+    process = subprocess.Popen(bench.command(*args), cwd=bench.root, env=bench.env, start_new_session=True,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 600
+        while not _zoo_runs(marker):
+            assert process.poll() is None and time.monotonic() < deadline, "the training never started"
+            time.sleep(0.2)
+        process.kill()  # the runner alone, with no chance to clean up (its worker and the zoo are not signalled)
+        process.wait()
+        deadline = time.monotonic() + 120
+        while _zoo_runs(marker):
+            assert time.monotonic() < deadline, "the zoo run outlived its runner"
+            time.sleep(0.2)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)

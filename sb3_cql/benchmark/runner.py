@@ -5,8 +5,11 @@ over worker processes.
 
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import multiprocessing
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -15,6 +18,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +28,8 @@ from sb3_cql.benchmark.runs import Run
 
 #: The task every algorithm trains on (thesis 4.3); the final evaluation covers all of ``envs.ENV_IDS``.
 TRAIN_ENV = "Panda-v0"
+#: prctl's option: the signal this process gets when its parent dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
 #: The thesis's five seeds.
 THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
 #: The scripted PD controllers (the thesis's, and ours that regrasps, whose noisy runs are the data): evaluated,
@@ -112,6 +118,17 @@ class Protocol:
                 raise BenchmarkError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
 
 
+def _die_with_parent(parent: int | None = None) -> None:
+    """Linux: have the kernel kill this process when its parent dies, so that a killed runner takes its workers,
+    and a killed worker its zoo run, along (the next run resumes from the checkpoints) instead of leaving them to
+    write into the results beside a new runner. ``parent``: exit now if the parent is no longer that process."""
+    if not sys.platform.startswith("linux"):
+        return
+    ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if parent is not None and os.getppid() != parent:  # it died before the prctl
+        os._exit(1)
+
+
 def _seconds(seconds: float) -> str:
     minutes, seconds = divmod(int(round(seconds)), 60)
     hours, minutes = divmod(minutes, 60)
@@ -165,7 +182,8 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
         with open(log, "a") as file:
             file.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} segment {segment}: {' '.join(command)}\n")
             file.flush()
-            returncode = subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL).returncode
+            returncode = subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                        preexec_fn=partial(_die_with_parent, os.getpid())).returncode  # fmt: skip
         times[segment] = [start, time.time()]
         write_json(times_path, times)
         if returncode != 0:
@@ -274,7 +292,8 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
         if not system.is_file():
             write_json(system, system_info())
         context = multiprocessing.get_context("spawn")  # workers start clean (no torch state, no inherited locks)
-        with ProcessPoolExecutor(max_workers=protocol.workers, mp_context=context) as pool:
+        pool = ProcessPoolExecutor(protocol.workers, context, initializer=_die_with_parent, initargs=(os.getpid(),))
+        with pool:
             # Units wait here, not in the pool's own (first in, first out) queue, so that a finished training's
             # evaluations go first: its results come as soon as possible, not after every other training.
             waiting: deque[Unit] = deque()
