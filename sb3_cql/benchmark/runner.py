@@ -118,14 +118,14 @@ class Protocol:
                 raise BenchmarkError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
 
 
-def _die_with_parent(parent: int | None = None) -> None:
+def _die_with_parent(parent: int) -> None:
     """Linux: have the kernel kill this process when its parent dies, so that a killed runner takes its workers,
     and a killed worker its zoo run, along (the next run resumes from the checkpoints) instead of leaving them to
-    write into the results beside a new runner. ``parent``: exit now if the parent is no longer that process."""
+    write into the results beside a new runner. ``parent``: the expected parent's pid (exit now if it is gone)."""
     if not sys.platform.startswith("linux"):
         return
     ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if parent is not None and os.getppid() != parent:  # it died before the prctl
+    if os.getppid() != parent:  # it died before the prctl
         os._exit(1)
 
 
