@@ -215,6 +215,33 @@ def test_warm_start_continues_where_a_saved_model_left_it(tmp_path):
     assert model.actor.optimizer.param_groups[0]["lr"] == pytest.approx(1e-4)  # the Q phase after 110 steps
 
 
+def test_actor_bc_weight_holds_the_actor_near_the_data_after_the_warm_start():
+    """Data mostly at a = -0.8 with reward 1 - a^2, so Q is highest at a = 0 and imitation at about -0.64: without the
+    anchor the actor follows Q; with a large ``actor_bc_weight`` it stays with the data."""
+    env = OneStepBandit()
+    rng = np.random.default_rng(0)
+    actions = np.where(rng.random(2000) < 0.8, -0.8, rng.uniform(-1.0, 1.0, size=2000))
+    buffer = ReplayBuffer(2000, env.observation_space, env.action_space)
+    for action in actions:
+        buffer.add(np.zeros(1), np.zeros(1), np.array([action]), np.array([1 - action**2]), np.array([True]), [{}])
+
+    def trained_action(actor_bc_weight):
+        model = CQL("MlpPolicy", env, dataset=buffer, batch_size=64, learning_rate=1e-3, actor_learning_rate=1e-3,
+                    cql_alpha=0.0, actor_bc_weight=actor_bc_weight, policy_kwargs=TINY, seed=0)  # fmt: skip
+        model.learn(1500)
+        return model.predict(np.zeros(1, dtype=np.float32), deterministic=True)[0][0]
+
+    assert abs(trained_action(0.0)) < 0.2
+    assert trained_action(50.0) == pytest.approx(actions.mean(), abs=0.1)
+
+
+@pytest.mark.parametrize("options", [{"cql_n_actions": 0}, {"cql_temperature": 0.0}, {"cql_alpha": -1.0},
+                                     {"actor_bc_weight": -1.0}, {"actor_bc_weight": float("nan")}])  # fmt: skip
+def test_invalid_cql_settings_are_rejected(options):
+    with pytest.raises(ValueError, match=next(iter(options))):
+        CQL("MlpPolicy", "Pendulum-v1", **options)
+
+
 def test_critics_learn_the_scaled_and_shifted_reward():
     """With ``reward_scale`` and ``reward_bias`` the critics fit ``scale * r + bias`` (one-step episodes: Q is the
     reward), while the buffer keeps the data's rewards."""

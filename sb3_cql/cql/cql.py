@@ -75,6 +75,12 @@ class CQL(OfflineSAC):
     :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
         ``bc_steps`` to ``actor_learning_rate`` (imitation needs a larger rate than following Q, and a clone settles
         only as its rate decays); ``None`` for ``actor_learning_rate`` throughout.
+    :param actor_bc_weight: after the warm start, keep imitating in the actor loss: SAC's actor loss divided by the
+        batch's mean ``|Q|`` (detached) plus ``actor_bc_weight`` times the warm start's behaviour-cloning loss, as in
+        TD3+BC (Fujimoto & Gu 2021, https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight``
+        (its default 2.5 is 0.4 here). ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed
+        (``results/dataset_comparison.md``, session 7): without it, following Q breaks a working clone within 1,000
+        steps; with a weight of 4 the clone held through 3,000 Q steps.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
         rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
@@ -110,6 +116,7 @@ class CQL(OfflineSAC):
         cql_max_backup: bool = False,
         bc_steps: int = 0,
         bc_learning_rate: float | None = None,
+        actor_bc_weight: float = 0.0,
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
         normalize_observations: bool = True,
@@ -120,8 +127,8 @@ class CQL(OfflineSAC):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0:
-            raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0 and cql_alpha >= 0")
+        if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0 or not actor_bc_weight >= 0:
+            raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0, cql_alpha >= 0 and actor_bc_weight >= 0")
         self.cql_alpha = cql_alpha
         self.cql_n_actions = cql_n_actions
         self.cql_temperature = cql_temperature
@@ -130,6 +137,7 @@ class CQL(OfflineSAC):
         self.cql_max_backup = cql_max_backup
         self.bc_steps = bc_steps
         self.bc_learning_rate = bc_learning_rate
+        self.actor_bc_weight = actor_bc_weight
         self.reward_scale = reward_scale
         self.reward_bias = reward_bias
         self.log_alpha_prime: th.Tensor | None = None
@@ -234,6 +242,11 @@ class CQL(OfflineSAC):
                 q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
                 actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+                if self.actor_bc_weight > 0:
+                    # TD3+BC's anchor: the Q term on a scale of 1 whatever the rewards, plus imitation of the data.
+                    bc_loss = behaviour_cloning_loss(policy[0], data.actions)
+                    _append(logs, "train/actor_bc_loss", bc_loss.item())
+                    actor_loss = actor_loss / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
             self.actor.optimizer.zero_grad()
             actor_loss.backward()
             self.actor.optimizer.step()

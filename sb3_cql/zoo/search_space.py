@@ -13,10 +13,14 @@ NET_ARCHS = {"medium": [256, 256], "large": [256, 256, 256], "verybig": [512, 51
 #: training budget (``-n``); a warm start as long as the budget or longer makes the trial a pure imitation run.
 BC_STEPS = [0, 5000, 10000, 20000]
 
+#: Weights of the imitation anchor on the actor after the warm start (0: none, CQL as defined; 0.4: TD3+BC's alpha 2.5).
+ACTOR_BC_WEIGHTS = [0.0, 0.4, 1.0, 4.0]
+
 
 def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
-    """Sample the conservative weight, both learning rates, batch size, sampled actions, network size and the
-    behaviour-cloning warm start (its length, and its starting learning rate when it has one)."""
+    """Sample the conservative weight, both learning rates, batch size, sampled actions, network size, the
+    behaviour-cloning warm start (its length, and its starting learning rate when it has one) and the actor's
+    imitation anchor after it."""
     params = {
         "cql_alpha": trial.suggest_float("cql_alpha", 0.1, 20.0, log=True),
         "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
@@ -25,6 +29,7 @@ def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "cql_n_actions": trial.suggest_categorical("cql_n_actions", [4, 10, 20]),
         "net_arch": trial.suggest_categorical("net_arch", list(NET_ARCHS)),
         "bc_steps": trial.suggest_categorical("bc_steps", BC_STEPS),
+        "actor_bc_weight": trial.suggest_categorical("actor_bc_weight", ACTOR_BC_WEIGHTS),
     }
     if params["bc_steps"] > 0:  # (without a warm start the rate is unused)
         params["bc_learning_rate"] = trial.suggest_float("bc_learning_rate", 1e-4, 3e-3, log=True)
