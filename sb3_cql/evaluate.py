@@ -75,6 +75,26 @@ def load_policy(model: str, algo: str | None, env_id: str, env_kwargs: dict[str,
     return ALGOS[algo].load(model, device="cpu", **kwargs)
 
 
+class EnvKwargs(StoreDict):
+    """RL-Zoo3's ``KEY:VALUE`` dict action, with a usage error (not a traceback from ``eval``) for an item that is
+    not one: typically the model's path, swallowed when it comes after ``--env-kwargs``."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        for item in values:
+            key, _, value = item.partition(":")
+            try:
+                eval(value)  # as StoreDict does next
+                valid = bool(key)
+            except Exception:  # SyntaxError for the empty value of an item without ":", NameError, ...
+                valid = False
+            if not valid:
+                parser.error(
+                    f"{option_string} takes KEY:VALUE items with a Python value (e.g. action_mode:\"'delta'\"), got "
+                    f"{item!r} (a string needs quotes; the model goes before {option_string})"
+                )
+        super().__call__(parser, namespace, values, option_string)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m sb3_cql.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -85,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("-n", "--n-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic ones")
-    parser.add_argument("--env-kwargs", type=str, nargs="+", action=StoreDict, default={},
+    parser.add_argument("--env-kwargs", type=str, nargs="+", action=EnvKwargs, default={},
                         help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (the model's action mode)")  # fmt: skip
     args = parser.parse_args(argv)
     model = None if args.model in envs.CONTROLLERS else load_policy(args.model, args.algo, args.env[0])  # loaded once

@@ -235,6 +235,18 @@ def test_the_pd_controller_is_evaluated_in_the_action_mode_given(capsys):
         main(["pid", "--env", "Panda-v0", "-n", "1", "--env-kwargs", "action_mode:'velocity'"])
 
 
+@pytest.mark.parametrize("items", [["action_mode:'delta'", "model.zip"], ["action_mode:delta"]])
+def test_env_kwargs_that_are_not_key_value_items_are_a_usage_error(capsys, items):
+    from sb3_cql.evaluate import main
+
+    with pytest.raises(SystemExit) as error:
+        main(["pid", "--env", "Panda-v0", "--env-kwargs", *items])
+    assert error.value.code == 2
+    assert f"--env-kwargs takes KEY:VALUE items with a Python value (e.g. action_mode:\"'delta'\"), got {items[-1]!r}" in (
+        capsys.readouterr().err
+    )
+
+
 def test_pid_regrasp_names_the_regrasping_pd_controller():
     from sb3_cql.evaluate import load_policy
 
