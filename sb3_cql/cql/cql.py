@@ -79,8 +79,9 @@ class CQL(OfflineSAC):
         batch's mean ``|Q|`` (detached) plus ``actor_bc_weight`` times the warm start's behaviour-cloning loss, as in
         TD3+BC (Fujimoto & Gu 2021, https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight``
         (its default 2.5 is 0.4 here). ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed
-        (``results/dataset_comparison.md``, session 7): without it, following Q breaks a working clone within 1,000
-        steps; with a weight of 4 the clone held through 3,000 Q steps.
+        (``results/dataset_comparison.md``, sessions 7-8): without it, following Q broke a working clone within 1,000
+        steps; with a weight of 4 the clone held through 21,000 Q steps, neither better nor worse than the clone on
+        the three tasks; with 1 it slipped.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
         rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
