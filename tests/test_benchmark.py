@@ -185,3 +185,21 @@ def test_a_killed_runner_takes_its_workers_and_zoo_runs_along(bench):
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(process.pid, signal.SIGKILL)
+
+
+def test_an_algorithms_confidence_interval_depends_on_its_own_scores_alone():
+    """Not on the other rows, nor on numpy's global generator, which rliable's bootstrap draws from."""
+    import numpy as np
+
+    from sb3_cql.benchmark.report import summarise
+
+    tasks = ["Panda-v0", "PandaForce-v0"]
+    cql = ([1, 2, 3, 4, 5], np.array([[1.0, 0.2], [0.9, 0.3], [0.95, 0.1], [0.8, 0.25], [1.0, 0.15]]))
+    np.random.seed(1)
+    alone = summarise({"cql": cql}, tasks)
+    assert np.random.randint(1000) == np.random.RandomState(1).randint(1000)  # the global generator is left as found
+    np.random.seed(2)  # (rliable resamples with numpy's global generator)
+    with_others = summarise({"cql": cql, "sac": ([1, 2, 3], np.zeros((3, 2))), "bc": cql}, tasks)
+    assert with_others["cql"] == alone["cql"] == with_others["bc"]
+    low, high = alone["cql"]["Panda-v0"]["iqm_ci95"]
+    assert low < alone["cql"]["Panda-v0"]["iqm"] < high

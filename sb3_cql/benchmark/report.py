@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import csv
 import io
-import warnings
 from collections.abc import Iterable
 from typing import Any
 
@@ -54,12 +53,17 @@ def summarise(matrices: dict[str, tuple[list[int], np.ndarray]], tasks: list[str
     def iqm_per_task(scores: np.ndarray) -> np.ndarray:
         return np.array([metrics.aggregate_iqm(scores[:, column]) for column in range(scores.shape[1])])
 
-    score_dict = {algo: matrix for algo, (_, matrix) in matrices.items()}
-    with warnings.catch_warnings():  # rliable hands arch a RandomState, which arch deprecates
-        warnings.simplefilter("ignore", FutureWarning)
-        iqm, intervals = rly.get_interval_estimates(
-            score_dict, iqm_per_task, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED)
-        )
+    iqm, intervals = {}, {}
+    for algo, (_, matrix) in matrices.items():  # seeded each: a row's interval depends on its own scores alone
+        # rliable's StratifiedBootstrap draws its resamples from numpy's global generator (np.random.choice), not the
+        # random_state it is given: seed that, and give the caller's state back.
+        global_state = np.random.get_state()
+        np.random.seed(BOOTSTRAP_SEED)
+        try:
+            estimates = rly.get_interval_estimates({algo: matrix}, iqm_per_task, reps=BOOTSTRAP_REPS)
+        finally:
+            np.random.set_state(global_state)
+        iqm[algo], intervals[algo] = estimates[0][algo], estimates[1][algo]
     summary: dict[str, dict[str, Any]] = {}
     for algo, (seeds, matrix) in matrices.items():
         std = matrix.std(axis=0, ddof=1) if len(seeds) > 1 else np.full(len(tasks), np.nan)
