@@ -16,11 +16,14 @@ BC_STEPS = [0, 5000, 10000, 20000]
 #: Weights of the imitation anchor on the actor after the warm start (0: none, CQL as defined; 0.4: TD3+BC's alpha 2.5).
 ACTOR_BC_WEIGHTS = [0.0, 0.4, 1.0, 4.0]
 
+#: The critics' rewards by name, as ``(reward_scale, reward_bias)``: the data's 0/1, or the thesis code's 4r - 2.
+REWARDS = {"data": (1.0, 0.0), "shifted": (4.0, -2.0)}
+
 
 def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """Sample the conservative weight, both learning rates, batch size, sampled actions, network size, the
-    behaviour-cloning warm start (its length, and its starting learning rate when it has one) and the actor's
-    imitation anchor after it."""
+    behaviour-cloning warm start (its length, and its starting learning rate when it has one), the actor's imitation
+    anchor after it and the critics' rewards."""
     params = {
         "cql_alpha": trial.suggest_float("cql_alpha", 0.1, 20.0, log=True),
         "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
@@ -30,6 +33,7 @@ def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "net_arch": trial.suggest_categorical("net_arch", list(NET_ARCHS)),
         "bc_steps": trial.suggest_categorical("bc_steps", BC_STEPS),
         "actor_bc_weight": trial.suggest_categorical("actor_bc_weight", ACTOR_BC_WEIGHTS),
+        "reward": trial.suggest_categorical("reward", list(REWARDS)),
     }
     if params["bc_steps"] > 0:  # (without a warm start the rate is unused)
         params["bc_learning_rate"] = trial.suggest_float("bc_learning_rate", 1e-4, 3e-3, log=True)
@@ -37,7 +41,10 @@ def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
 
 
 def convert_cql_params(params: dict[str, Any]) -> dict[str, Any]:
-    """A trial's raw parameters as CQL keywords (``net_arch`` name -> ``policy_kwargs``)."""
+    """A trial's raw parameters as CQL keywords (``net_arch`` name -> ``policy_kwargs``, ``reward`` name ->
+    ``reward_scale`` and ``reward_bias``)."""
     hyperparams = dict(params)
     hyperparams["policy_kwargs"] = {"net_arch": NET_ARCHS[hyperparams.pop("net_arch")]}
+    if "reward" in hyperparams:  # (studies from before it was sampled)
+        hyperparams["reward_scale"], hyperparams["reward_bias"] = REWARDS[hyperparams.pop("reward")]
     return hyperparams
