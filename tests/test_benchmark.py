@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_cql.benchmark.runs import Run
+from sb3_cql.benchmark.runs import Run, model_timesteps
 
 TASKS = ["Panda-v0", "PandaForce-v0", "PandaPerturbed-v0"]
 # Tiny networks and batches, short runs, one episode per evaluation: the point is the plumbing.
@@ -127,7 +127,8 @@ def test_a_killed_training_resumes_from_its_checkpoint(bench):
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     try:
         deadline = time.monotonic() + 600
-        while not (first / "rl_model_100_steps.zip").is_file():
+        # Complete, not just begun: SB3 writes a checkpoint in place, and one killed mid-write is rightly not resumed.
+        while model_timesteps(first / "rl_model_100_steps.zip") is None:
             assert process.poll() is None and time.monotonic() < deadline, "no checkpoint before the end"
             time.sleep(0.2)
     finally:
@@ -203,3 +204,25 @@ def test_an_algorithms_confidence_interval_depends_on_its_own_scores_alone():
     assert with_others["cql"] == alone["cql"] == with_others["bc"]
     low, high = alone["cql"]["Panda-v0"]["iqm_ci95"]
     assert low < alone["cql"]["Panda-v0"]["iqm"] < high
+
+
+def test_a_checkpoint_cut_short_by_a_kill_is_not_resumed(tmp_path):
+    """SB3 writes a checkpoint in place: a kill mid-write leaves a truncated zip, which must count as absent."""
+    import yaml
+    from stable_baselines3 import SAC
+
+    segment = tmp_path / "cql" / "Pendulum-v1_1"
+    (segment / "Pendulum-v1").mkdir(parents=True)
+    (segment / "Pendulum-v1" / "args.yml").write_text(yaml.safe_dump({"n_timesteps": 300, "trained_agent": ""}))
+    (segment / "Pendulum-v1" / "config.yml").write_text(yaml.safe_dump({"n_timesteps": 300}))
+    model = SAC("MlpPolicy", "Pendulum-v1", policy_kwargs={"net_arch": [8]}, buffer_size=10, device="cpu")
+    for step in (100, 200):
+        model.num_timesteps = step
+        model.save(segment / f"rl_model_{step}_steps.zip")
+    run = Run.read(tmp_path / "cql", "Pendulum-v1")
+    assert run.latest_model() == (200, segment / "rl_model_200_steps.zip")
+
+    whole = (segment / "rl_model_200_steps.zip").read_bytes()
+    (segment / "rl_model_200_steps.zip").write_bytes(whole[: len(whole) // 2])
+    assert model_timesteps(segment / "rl_model_200_steps.zip") is None
+    assert run.latest_model() == (100, segment / "rl_model_100_steps.zip") and not run.is_complete()
