@@ -3,10 +3,11 @@
 Usage: python results/diagnostics/cql_from_clone.py BC_MODEL.zip STEPS K '{"batch_size": 128, "bc_steps": 3000, ...}' [DATASET]
 (DATASET: the Minari id CQL trains on, sb3cql/Panda-v0/noisy-delta-v0 by default, session 4's data)
 (results/dataset_comparison.md, session 4 tables "Starting from a working clone" and after). The final model is saved
-in the CSV log's folder (cql_from_clone_logs/TIME/model.zip) for sb3_cql.evaluate. Throwaway-grade.
+in the CSV log's folder (cql_from_clone_logs/TIME-PID/model.zip) for sb3_cql.evaluate. Throwaway-grade.
 """
 
 import json
+import os
 import sys
 import time
 
@@ -27,7 +28,7 @@ bc = BC.load(bc_path)
 model = CQL("MlpPolicy", env, dataset=dataset, policy_kwargs=dict(net_arch=[256, 256, 256]), seed=1, **kwargs)
 model.actor.load_state_dict(bc.actor.state_dict())
 model.policy.actor.load_state_dict(bc.actor.state_dict())
-log_dir = "cql_from_clone_logs/" + str(int(time.time()))
+log_dir = f"cql_from_clone_logs/{int(time.time())}-{os.getpid()}"  # two runs started together get their own
 model.set_logger(configure(log_dir, ["csv"]))
 
 
