@@ -312,6 +312,27 @@ def test_fused_relu_mlp_computes_what_the_sequential_computes():
         th.testing.assert_close(grad, expected_grad, rtol=1e-4, atol=1e-5)
 
 
+def test_fused_relu_mlp_calls_onednn_only_on_cpu_tensors(monkeypatch):
+    """oneDNN's fused linear has no kernel for GPU tensors: any other device takes the plain products."""
+    import sb3_cql.cql.fused_mlp as fused_mlp
+
+    calls = []
+
+    def onednn(x, *args):
+        calls.append(x.device.type)
+        if x.device.type != "cpu":
+            raise RuntimeError(f"oneDNN's linear has no {x.device.type} kernel")
+        return th.addmm(args[1], x, args[0].t()).relu() if args[2] == "relu" else th.addmm(args[1], x, args[0].t())
+
+    monkeypatch.setattr(fused_mlp, "_ONEDNN_LINEAR", onednn)
+    network = th.nn.Sequential(th.nn.Linear(7, 16), th.nn.ReLU(), th.nn.Linear(16, 1))
+    on_cpu = relu_mlp(th.randn(5, 7), relu_mlp_parameters(network))
+    assert calls == ["cpu", "cpu"]
+    network = network.to("meta")  # a device without oneDNN, as a GPU is; the meta device checks shapes only
+    on_meta = relu_mlp(th.randn(5, 7, device="meta"), relu_mlp_parameters(network))
+    assert calls == ["cpu", "cpu"] and on_meta.shape == on_cpu.shape == (5, 1)
+
+
 def test_other_critic_networks_use_the_module_itself():
     tanh = th.nn.Sequential(th.nn.Linear(3, 8), th.nn.Tanh(), th.nn.Linear(8, 1))
     assert relu_mlp_parameters(tanh) is None

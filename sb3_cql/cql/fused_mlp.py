@@ -33,10 +33,11 @@ class _ReluMlpFunction(th.autograd.Function):
     def forward(ctx, x: th.Tensor, *parameters: th.Tensor) -> th.Tensor:  # type: ignore[override]
         weights, biases = parameters[0::2], parameters[1::2]
         inputs = [x]
+        onednn = _ONEDNN_LINEAR if x.device.type == "cpu" else None  # oneDNN runs on CPU tensors only
         for index, (weight, bias) in enumerate(zip(weights, biases, strict=True)):
             hidden = index < len(weights) - 1
-            if _ONEDNN_LINEAR is not None:  # bias and ReLU applied inside oneDNN's matrix product
-                x = _ONEDNN_LINEAR(x, weight, bias, "relu" if hidden else "none", [None], "")
+            if onednn is not None:  # bias and ReLU applied inside oneDNN's matrix product
+                x = onednn(x, weight, bias, "relu" if hidden else "none", [None], "")
             else:
                 x = th.addmm(bias, x, weight.t().contiguous())
                 if hidden:
