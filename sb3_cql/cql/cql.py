@@ -79,7 +79,7 @@ class CQL(OfflineSAC):
         batch's mean ``|Q|`` (detached) plus ``actor_bc_weight`` times the warm start's behaviour-cloning loss, as in
         TD3+BC (Fujimoto & Gu 2021, https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight``
         (its default 2.5 is 0.4 here). ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed
-        (``results/dataset_comparison.md``, sessions 7-8): without it, following Q broke a working clone within 1,000
+        (the documentation's *What we learned* page): without it, following Q broke a working clone within 1,000
         steps; with a weight of 4 the clone held through 21,000 Q steps, neither better nor worse than the clone on
         the three tasks; with 1 it slipped.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
@@ -235,7 +235,7 @@ class CQL(OfflineSAC):
                 # moved the mean enough to break a working grasp within a few hundred steps. (A likelihood of the data
                 # actions for the spread made the policy's samples bang-bang on the noisy data, whose clipped actions
                 # often sit at +-1; the conservative term then kept Q at the policy's samples tens below Q at the data
-                # actions, and the backup carried that gap into every Q-value: results/dataset_comparison.md.)
+                # actions, and the backup carried that gap into every Q-value: docs/findings.md.)
                 mean_actions, log_std = self._imitation_dist_params(data.observations)
                 _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std)
                 actor_loss = (ent_coef * spread_log_prob).mean() + behaviour_cloning_loss(mean_actions, data.actions)
