@@ -1,0 +1,216 @@
+"""The experiment scripts in experiments/: each run end to end as a subprocess on a tiny dataset and clone, their
+command lines, and the backup variants of cql_from_clone.py.
+
+The five script runs start together, once per module (each is mostly start-up time), and the tests check their
+results.
+"""
+
+import ast
+import importlib.util
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+import torch as th
+
+from sb3_cql import BC, CQL
+from sb3_cql.data import CollectionSpec, collect_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = ("action_drift", "bc_continued", "cql_from_clone", "gripper_reopenings", "q_probe")
+DATASET = "sb3cql/Panda-v0/tiny-regrasp-delta-v0"
+TINY = {"batch_size": 16, "bc_steps": 1, "policy_kwargs": {"net_arch": [32]}}
+ACTION_DIM = 9
+FLOAT = r"-?\d+(?:\.\d+)?(?:e-?\d+)?"
+FLOATS = rf"\[{FLOAT}(?:, {FLOAT}){{{ACTION_DIM - 1}}}\]"  # one value per action dimension
+
+
+def load_script(name: str):
+    """The script ``experiments/<name>.py`` as a module (its ``main`` is not run)."""
+    spec = importlib.util.spec_from_file_location(f"experiments_{name}", ROOT / "experiments" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """A 2-episode delta-action dataset of the regrasping PD controller (one success, one episode that reopens) in a
+    temporary MINARI_DATASETS_PATH, and a clone of it trained for a few steps, saved as ``bc.zip``."""
+    root = tmp_path_factory.mktemp("experiments")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(root / "datasets"))
+        spec = CollectionSpec(policy="noisy-regrasp", n_episodes=2, env_kwargs={"action_mode": "delta"})
+        collect_dataset(spec, DATASET, progress_bar=False)
+        clone = BC("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, batch_size=16,
+                   policy_kwargs={"net_arch": [32]}, seed=0)  # fmt: skip
+        clone.learn(3)
+        clone.save(root / "bc.zip")
+        yield root
+
+
+def commands(root: Path) -> dict[str, list[str]]:
+    """Each script's tiny run: a few gradient steps, one evaluation episode, logs in ``root``."""
+    bc, tiny = str(root / "bc.zip"), json.dumps(TINY)
+    return {
+        "action_drift": [bc, "--dataset-id", DATASET, "--kwargs", tiny, "--every", "1", "--probes", "2",
+                         "--probe-states", "64", "--log-dir", str(root / "action_drift")],
+        "bc_continued": [bc, "1", "2", "1e-3", "16", DATASET, "--eval-episodes", "1", "--log-dir", str(root / "bc_continued")],
+        "cql_from_clone": [bc, "2", "2", json.dumps({**TINY, "clip_backup": True}), DATASET, "--eval-episodes", "1",
+                           "--log-dir", str(root / "cql_from_clone")],
+        "gripper_reopenings": [DATASET],
+        "q_probe": ["2", tiny, "--dataset-id", DATASET, "--probe-states", "64", "--log-dir", str(root / "q_probe")],
+    }  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def runs(inputs) -> dict[str, subprocess.CompletedProcess]:
+    """Every script's tiny run, started together from the repository root; each one's exit status and output."""
+    env = {**os.environ, "MINARI_DATASETS_PATH": str(inputs / "datasets")}
+    outputs = {name: (inputs / f"{name}.stdout", inputs / f"{name}.stderr") for name in SCRIPTS}
+    started = {}
+    for name, args in commands(inputs).items():
+        with open(outputs[name][0], "w") as stdout, open(outputs[name][1], "w") as stderr:
+            command = [sys.executable, f"experiments/{name}.py", *args]
+            started[name] = subprocess.Popen(command, cwd=ROOT, env=env, stdout=stdout, stderr=stderr)
+    results = {}
+    for name, process in started.items():
+        returncode = process.wait(timeout=600)
+        results[name] = subprocess.CompletedProcess(process.args, returncode, *(path.read_text() for path in outputs[name]))
+    return results
+
+
+def succeeded(runs, name: str) -> list[str]:
+    """The lines ``name``'s run printed, once it has exited 0 (less pybullet's ``argv[0]=`` at each connection)."""
+    result = runs[name]
+    assert result.returncode == 0, result.stderr[-3000:]
+    return [line for line in result.stdout.splitlines() if line != "argv[0]="]
+
+
+def test_action_drift_prints_gradients_and_shifts(runs, inputs):
+    lines = succeeded(runs, "action_drift")
+    assert lines[0] == f"Logging to {inputs / 'action_drift'}"
+    gradient = rf"dQ/da mean {FLOATS}, \|dQ/da\| mean {FLOATS}"
+    expected = [rf"step 1: {gradient}", *(rf"step {step}: shift mean {FLOATS}, \|shift\| mean {FLOATS}" for step in (2, 3)),
+                rf"step 3: {gradient}"]  # fmt: skip
+    assert len(lines) == 1 + len(expected)
+    for line, pattern in zip(lines[1:], expected, strict=True):
+        assert re.fullmatch(pattern, line), line
+    assert (inputs / "action_drift" / "progress.csv").exists()
+
+
+def test_bc_continued_prints_success_every_k_steps(runs, inputs):
+    lines = succeeded(runs, "bc_continued")
+    assert lines[0] == f"Logging to {inputs / 'bc_continued'}"
+    assert [re.fullmatch(rf"step (\d+): success rate {FLOAT}", line).group(1) for line in lines[1:]] == ["0", "1"]
+    logged = pd.read_csv(inputs / "bc_continued" / "progress.csv")
+    assert logged["train/n_updates"].tolist() == [1]  # a row per evaluation after training; STEPS is not rounded up to K
+
+
+def test_cql_from_clone_prints_success_and_saves_the_model(runs, inputs):
+    lines = succeeded(runs, "cql_from_clone")
+    run_dir = Path(re.fullmatch(r"Logging to (.+)", lines[0]).group(1))
+    assert run_dir.parent == inputs / "cql_from_clone" and re.fullmatch(r"\d+-\d+", run_dir.name)
+    assert re.fullmatch(rf"step 0: success rate {FLOAT}", lines[1])
+    assert re.fullmatch(rf"step 2: success rate {FLOAT}, policy std {FLOATS}", lines[2])
+    assert lines[3:] == [f"saved {run_dir / 'model.zip'}"]
+    model = CQL.load(run_dir / "model.zip")
+    assert model._n_updates == 2 and model.batch_size == 16 and model.policy_kwargs["net_arch"] == [32]
+    clone = BC.load(inputs / "bc.zip").actor.state_dict()
+    for key, value in model.actor.state_dict().items():  # the clone's actor after 2 steps at CQL's actor rate, 3e-5
+        th.testing.assert_close(value, clone[key], atol=1e-3, rtol=0)
+    assert "train/cql_q_data" in pd.read_csv(run_dir / "progress.csv").columns
+
+
+def test_gripper_reopenings_counts_the_episodes(runs):
+    (line,) = succeeded(runs, "gripper_reopenings")
+    # Episode 0 of the seed-0 collection loses the object and reopens; episode 1 succeeds without reopening.
+    assert line == f"{DATASET}: 2 episodes, success rate 0.500, 1 with a reopening (0 of them successful)"
+
+
+def test_q_probe_prints_q_at_data_perturbed_and_policy_actions(runs, inputs):
+    lines = succeeded(runs, "q_probe")
+    assert lines[0] == f"Logging to {inputs / 'q_probe'}"
+    assert set(ast.literal_eval(lines[1].removeprefix("gripper data values "))) <= {-1.0, 1.0}
+    expected = [r"Q data", *(rf"Q gripper x {scale}" for scale in ("0.99", "0.97", "0.9", "0.5")), r"Q arm \+N\(0,0.05\)"]
+    for line, name in zip(lines[2:8], expected, strict=True):
+        assert math.isfinite(float(re.fullmatch(rf"{name} ({FLOAT})", line).group(1))), line
+    assert re.fullmatch(rf"Q policy mean {FLOAT}, Q policy sample {FLOAT}, policy std \[.+\]", lines[8])
+    assert re.fullmatch(rf"Q policy mean with data gripper {FLOAT}", lines[9]) and len(lines) == 10
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_help_shows_the_usage(name, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        load_script(name).main(["--help"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: python experiments/{name}.py")
+
+
+@pytest.mark.parametrize(
+    ("name", "args", "message"),
+    [
+        ("bc_continued", ["bc.zip", "many", "2", "1e-3", "16", DATASET], "argument STEPS: invalid int value: 'many'"),
+        ("bc_continued", ["bc.zip", "10", "0", "1e-3", "16", DATASET], "argument K: must be a positive integer, got 0"),
+        ("cql_from_clone", ["bc.zip", "10", "2", "{"], "argument KWARGS_JSON: not JSON"),
+        ("cql_from_clone", ["bc.zip", "10", "2", '{"batch": 16}'], "argument KWARGS_JSON: not CQL keywords: batch"),
+        ("cql_from_clone", ["bc.zip", "10", "2", '{"clip_backup": true, "mean_backup": true}'], "at most one of"),
+        ("q_probe", ["10"], "the following arguments are required: KWARGS_JSON"),
+        ("q_probe", ["10", "[16]"], "argument KWARGS_JSON: must be a JSON object"),
+        ("action_drift", ["bc.zip", "--kwargs", '{"seed": 2}'], "argument --kwargs: not CQL keywords: seed"),
+        ("gripper_reopenings", [], "the following arguments are required: DATASET_ID"),
+    ],
+)
+def test_a_bad_argument_is_a_usage_error(name, args, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        load_script(name).main(args)
+    assert exit_.value.code == 2
+    usage, error = capsys.readouterr().err.strip().rsplit("\n", 1)
+    assert usage.startswith(f"usage: python experiments/{name}.py") and message in error
+
+
+def test_reopening_is_an_open_command_after_the_first_close():
+    reopens = load_script("gripper_reopenings").reopens
+    assert not reopens(np.array([1.0, 1.0, -1.0, -1.0]))  # closes once
+    assert not reopens(np.array([1.0, 1.0]))  # never closes
+    assert reopens(np.array([1.0, -1.0, 1.0, -1.0]))  # regrasps
+    assert reopens(np.array([-1.0, 1.0]))  # starts closed
+
+
+def tiny_cql(variant, inputs):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+        return variant("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, seed=0, batch_size=16,
+                       policy_kwargs={"net_arch": [32]}, reward_scale=0.001, reward_bias=-0.0005)  # fmt: skip
+
+
+def test_clip_backup_clamps_the_next_state_values_to_the_possible_returns(inputs):
+    model = tiny_cql(load_script("cql_from_clone").ClippedBackupCQL, inputs)
+    data = model.replay_buffer.sample(256)
+    policy = model.actor.get_action_dist_params(data.next_observations)[:2]
+    with th.no_grad():
+        th.manual_seed(0)
+        clipped = model._next_q_values(data.next_observations, policy, th.ones(1))
+        th.manual_seed(0)
+        plain = CQL._next_q_values(model, data.next_observations, policy, th.ones(1))
+    bound = 0.0005 / (1 - model.gamma)  # rewards -0.0005 or 0.0005
+    assert plain.abs().max() > bound  # the untrained critics' values exceed the bound
+    th.testing.assert_close(clipped, plain.clamp(-bound, bound))
+
+
+def test_mean_backup_scores_the_mean_action(inputs):
+    model = tiny_cql(load_script("cql_from_clone").MeanBackupCQL, inputs)
+    data = model.replay_buffer.sample(256)
+    mean_actions, log_std = model.actor.get_action_dist_params(data.next_observations)[:2]
+    with th.no_grad():
+        values = model._next_q_values(data.next_observations, (mean_actions, log_std), th.ones(1))
+        expected = th.cat(model.critic_target(data.next_observations, th.tanh(mean_actions)), 1).min(1, keepdim=True).values
+    th.testing.assert_close(values, expected, atol=1e-4, rtol=0)
