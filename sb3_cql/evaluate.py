@@ -1,19 +1,32 @@
 """Success rate of a policy on each of the tasks: a model trained on one task, evaluated on all three.
 
     python -m sb3_cql.evaluate logs/cql/Panda-v0_1/best_model.zip --algo cql -n 100 --seed 0
+    python -m sb3_cql.evaluate logs/bc/Panda-v0_1/best_model.zip --algo bc --seeds 50000-50099   # one episode a seed
     python -m sb3_cql.evaluate pid --env Panda-v0 PandaForce-v0 -n 100
     python -m sb3_cql.evaluate pid-regrasp --env PandaForce-v0 -n 100      # the PD controller that regrasps
-    python -m sb3_cql.evaluate logs/bc/Panda-v0_1/best_model.zip --algo bc --env-kwargs action_mode:"'delta'"
+    python -m sb3_cql.evaluate pid --env Panda-v0 --env-kwargs action_mode:"'delta'"
 
 ``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...), ``pid`` for the PD controller or
 ``pid-regrasp`` for the PD controller that reopens and grasps again when it has lost the object.
+A model acts in the action mode it was trained in, the one whose action space is the model's (absolute: the joint
+limits, delta: [-1, 1]^9); an ``action_mode`` in ``--env-kwargs`` must be that one. The PD controllers act in the
+tasks' default (absolute) mode unless ``--env-kwargs`` gives another.
 Episodes are deterministic given ``--seed``: the env is reset with it once, and its own generator seeds the rest.
+With ``--seeds`` (a range FIRST-LAST or a list), episode i is reset with the i-th seed: any tool that resets the
+env with the same seeds replays the same episodes.
+A model that is missing, unreadable or not made for the tasks is reported in one line, with exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
-from typing import Any
+import inspect
+import itertools
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NoReturn
 
 import gymnasium as gym
 import numpy as np
@@ -24,6 +37,116 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
+from envs.robot import ACTION_MODES
+
+#: The action mode of an env made without ``action_mode``.
+DEFAULT_ACTION_MODE = inspect.signature(envs.PandaGraspEnv).parameters["action_mode"].default
+
+
+def describe_space(space: gym.Space) -> str:
+    """``space``'s repr on one line (numpy wraps long bounds)."""
+    return " ".join(repr(space).split())
+
+
+def check_spaces(policy: Any, env: gym.Env, env_id: str) -> None:
+    """Refuse a policy that was not made for ``env``: one whose ``observation_space`` or ``action_space`` (when it
+    has them, as SB3 models do) is not the env's.
+
+    :param policy: an SB3 model or :class:`envs.PDController` (which has neither space: always accepted).
+    :param env: the env the policy is about to act in.
+    :param env_id: the env's id, for the message.
+    :raises ValueError: naming both spaces.
+    """
+    for name in ("observation_space", "action_space"):
+        space = getattr(policy, name, None)
+        if space is not None and space != getattr(env, name):
+            action_mode = getattr(env.unwrapped, "action_mode", None)
+            made = f"{env_id} (action_mode {action_mode!r})" if name == "action_space" and action_mode else env_id
+            raise ValueError(
+                f"the policy's {name.replace('_', ' ')} {describe_space(space)} is not that of {made}: "
+                f"{describe_space(getattr(env, name))}"
+            )
+
+
+def env_spaces(env_id: str, env_kwargs: dict[str, Any] | None = None) -> tuple[gym.Space, gym.Space]:
+    """The observation and action spaces of ``env_id`` made with ``env_kwargs`` (the env is made and closed)."""
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        return env.observation_space, env.action_space
+    finally:
+        env.close()
+
+
+def env_kwargs_for(policy: Any, env_id: str, env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``env_kwargs`` with the ``action_mode`` that ``policy`` was trained in: the mode whose action space is the
+    policy's ``action_space``. A policy without ``action_space`` (the PD controllers) gets ``env_kwargs`` unchanged.
+
+    :param policy: an SB3 model or :class:`envs.PDController`.
+    :param env_id: the task.
+    :param env_kwargs: keywords of the env; an ``action_mode`` there must be the policy's.
+    :raises ValueError: when the policy's observation space is not the task's, when ``env_kwargs``'s
+        ``action_mode`` is not the policy's, or when no action mode is.
+    """
+    env_kwargs = dict(env_kwargs or {})
+    action_space = getattr(policy, "action_space", None)
+    if action_space is None:
+        return env_kwargs
+    given = env_kwargs.get("action_mode")
+    if given is not None and given not in ACTION_MODES:
+        raise ValueError(f"action_mode {given!r} is none of {env_id}'s: {', '.join(ACTION_MODES)}")
+    spaces_by_mode = {mode: env_spaces(env_id, {**env_kwargs, "action_mode": mode}) for mode in ACTION_MODES}
+    observation_space = getattr(policy, "observation_space", None)
+    task_observation_space = spaces_by_mode[given or DEFAULT_ACTION_MODE][0]
+    if observation_space is not None and observation_space != task_observation_space:
+        raise ValueError(
+            f"the model's observation space {describe_space(observation_space)} is not that of {env_id}: "
+            f"{describe_space(task_observation_space)} (a model of another task?)"
+        )
+    matching = [mode for mode, (_, space) in spaces_by_mode.items() if space == action_space]
+    if not matching:
+        modes = "; ".join(f"action_mode {mode!r}: {describe_space(space)}" for mode, (_, space) in spaces_by_mode.items())
+        raise ValueError(
+            f"the model's action space {describe_space(action_space)} is that of no action mode of {env_id} ({modes})"
+        )
+    if given is not None and given not in matching:
+        raise ValueError(
+            f"the model's action space {describe_space(action_space)} is that of action_mode {matching[0]!r}, not that "
+            f"of the action_mode {given!r} asked for: {describe_space(spaces_by_mode[given][1])}"
+        )
+    return {**env_kwargs, "action_mode": given or matching[0]}
+
+
+def episode_successes(
+    policy: Any,
+    env_id: str,
+    seeds: Sequence[int],
+    deterministic: bool = True,
+    env_kwargs: dict[str, Any] | None = None,
+) -> list[bool]:
+    """Whether ``policy`` succeeds in each episode of ``env_id``, episode ``i`` reset with ``seeds[i]``: an episode
+    is replayed by resetting the env with its seed (``env.reset(seed=s)``), whatever ran before.
+
+    :param policy: an SB3 model or :class:`envs.PDController`.
+    :param env_id: the task.
+    :param seeds: one seed per episode.
+    :param deterministic: use the policy's deterministic actions.
+    :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
+    :raises ValueError: for a policy whose spaces are not the env's (see :func:`check_spaces`).
+    """
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        check_spaces(policy, env, env_id)
+        successes = []
+        for seed in seeds:
+            observation, info = env.reset(seed=int(seed))
+            terminated = truncated = False
+            while not (terminated or truncated):
+                action, _ = policy.predict(observation, deterministic=deterministic)
+                observation, _, terminated, truncated, info = env.step(action)
+            successes.append(bool(info.get("is_success", False)))
+        return successes
+    finally:
+        env.close()
 
 
 def success_rate(
@@ -33,26 +156,41 @@ def success_rate(
     seed: int = 0,
     deterministic: bool = True,
     env_kwargs: dict[str, Any] | None = None,
+    seeds: Sequence[int] | None = None,
 ) -> float:
     """Fraction of ``n_episodes`` episodes of ``env_id`` that ``policy`` (anything with SB3's ``predict``) succeeds in.
 
     :param policy: an SB3 model or :class:`envs.PDController`.
     :param env_id: the task.
-    :param n_episodes: episodes.
-    :param seed: seed of the env's first reset.
+    :param n_episodes: episodes (without ``seeds``).
+    :param seed: seed of the env's first reset (without ``seeds``): SB3's ``evaluate_policy`` on a ``DummyVecEnv``
+        seeded once, whose generator seeds the next episodes.
     :param deterministic: use the policy's deterministic actions.
     :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
+    :param seeds: one episode per seed, each reset with its seed (:func:`episode_successes`); ``n_episodes`` and
+        ``seed`` are then not used.
+    :raises ValueError: for a policy whose ``observation_space`` or ``action_space`` is not the env's.
     """
-    env = DummyVecEnv([lambda: Monitor(gym.make(env_id, **(env_kwargs or {})))])
-    env.seed(seed)
+    if seeds is not None:
+        if len(seeds) == 0:
+            raise ValueError("seeds is empty: give one seed per episode")
+        return float(np.mean(episode_successes(policy, env_id, seeds, deterministic, env_kwargs)))
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        check_spaces(policy, env, env_id)
+    except ValueError:
+        env.close()
+        raise
+    vec_env = DummyVecEnv([lambda: Monitor(env)])
+    vec_env.seed(seed)
     successes: list[bool] = []
 
     def record_success(local_vars: dict[str, Any], _globals: dict[str, Any]) -> None:
         if local_vars["done"]:
             successes.append(bool(local_vars["info"].get("is_success", False)))
 
-    evaluate_policy(policy, env, n_eval_episodes=n_episodes, deterministic=deterministic, callback=record_success)
-    env.close()
+    evaluate_policy(policy, vec_env, n_eval_episodes=n_episodes, deterministic=deterministic, callback=record_success)
+    vec_env.close()
     return float(np.mean(successes))
 
 
@@ -75,6 +213,27 @@ def load_policy(model: str, algo: str | None, env_id: str, env_kwargs: dict[str,
     return ALGOS[algo].load(model, device="cpu", **kwargs)
 
 
+def parse_seeds(item: str) -> range:
+    """The seeds of one ``--seeds`` item: a seed ``S`` or the inclusive range ``FIRST-LAST``."""
+    match = re.fullmatch(r"(\d+)(?:-(\d+))?", item)
+    if match is None:
+        raise argparse.ArgumentTypeError(f"{item!r} is neither a seed nor a range FIRST-LAST of seeds (e.g. 50000-50099)")
+    first = int(match[1])
+    last = first if match[2] is None else int(match[2])
+    if last < first:
+        raise argparse.ArgumentTypeError(f"{item!r} is an empty range: FIRST-LAST needs FIRST <= LAST")
+    return range(first, last + 1)
+
+
+def format_seeds(seeds: Sequence[int]) -> str:
+    """``seeds`` as ``--seeds`` takes them, runs of consecutive seeds as ranges: ``50000-50099``, ``3 17 42``."""
+    items = []
+    for _, run in itertools.groupby(enumerate(seeds), key=lambda index_seed: index_seed[1] - index_seed[0]):
+        run_seeds = [seed for _, seed in run]
+        items.append(str(run_seeds[0]) if len(run_seeds) == 1 else f"{run_seeds[0]}-{run_seeds[-1]}")
+    return " ".join(items)
+
+
 class EnvKwargs(StoreDict):
     """RL-Zoo3's ``KEY:VALUE`` dict action, with a usage error (not a traceback from ``eval``) for an item that is
     not one: typically the model's path, swallowed when it comes after ``--env-kwargs``."""
@@ -95,6 +254,27 @@ class EnvKwargs(StoreDict):
         super().__call__(parser, namespace, values, option_string)
 
 
+def fail(parser: argparse.ArgumentParser, message: str) -> NoReturn:
+    """Exit with status 2, as a usage error does, after one line on stderr (no usage: the arguments parsed)."""
+    print(f"{parser.prog}: error: {' '.join(message.split())}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def load_model(parser: argparse.ArgumentParser, path: str, algo: str, env_id: str) -> Any:
+    """The SB3 model saved at ``path`` (or ``path`` + ``.zip``, as SB3 reads it), or a one-line error."""
+    from rl_zoo3.utils import ALGOS  # our plugin adds cql
+
+    if algo not in ALGOS:
+        fail(parser, f"unknown --algo {algo!r}: one of {', '.join(sorted(ALGOS))}")
+    found = next((candidate for candidate in (Path(path), Path(f"{path}.zip")) if candidate.is_file()), None)
+    if found is None:
+        fail(parser, f"no saved model at {path}" + (" (a folder)" if Path(path).is_dir() else ""))
+    try:
+        return load_policy(str(found), algo, env_id)
+    except Exception as error:  # an unreadable file: not a zip, truncated, another algorithm's model, ...
+        fail(parser, f"cannot load {found} as a {algo} model ({type(error).__name__}: {error})")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m sb3_cql.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -102,19 +282,44 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("model", help="path of a saved SB3 model, or pid, or pid-regrasp")
     parser.add_argument("--algo", default=None, help="RL-Zoo3 name of the model's algorithm (cql, sac, ...)")
     parser.add_argument("--env", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
-    parser.add_argument("-n", "--n-episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("-n", "--n-episodes", type=int, default=None,
+                        help="episodes per task (default 100; with --seeds, the number of seeds)")  # fmt: skip
+    seeding = parser.add_mutually_exclusive_group()
+    seeding.add_argument("--seed", type=int, default=0,
+                         help="seed of the env's first reset; its generator seeds the next episodes (default 0)")  # fmt: skip
+    seeding.add_argument("--seeds", type=parse_seeds, nargs="+", metavar="SEEDS",
+                         help="one episode per seed, reset with it: a range FIRST-LAST (inclusive) and/or seeds, "
+                              "e.g. 50000-50099 or 3 17 42")  # fmt: skip
     parser.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic ones")
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=EnvKwargs, default={},
-                        help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (the model's action mode)")  # fmt: skip
+                        help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (a model's action mode is read "
+                             "from its action space: an action_mode given must be that one)")  # fmt: skip
     args = parser.parse_args(argv)
-    model = None if args.model in envs.CONTROLLERS else load_policy(args.model, args.algo, args.env[0])  # loaded once
+    seeds = None if args.seeds is None else list(itertools.chain.from_iterable(args.seeds))
+    if seeds is not None and args.n_episodes not in (None, len(seeds)):
+        parser.error(f"-n {args.n_episodes} conflicts with --seeds, which gives {len(seeds)} episodes (one per seed)")
+    n_episodes = len(seeds) if seeds is not None else 100 if args.n_episodes is None else args.n_episodes
+    if n_episodes < 1:
+        parser.error(f"-n needs at least 1 episode, got {n_episodes}")
+    episodes = f"seed {args.seed}" if seeds is None else f"seeds {format_seeds(seeds)}"
+    if args.model in envs.CONTROLLERS:
+        model, env_kwargs = None, {env_id: args.env_kwargs for env_id in args.env}
+    else:
+        if args.algo is None:
+            parser.error("a saved model needs --algo (cql, sac, ...)")
+        model = load_model(parser, args.model, args.algo, args.env[0])  # loaded once
+        env_kwargs = {}
+        for env_id in args.env:  # every task checked before the first episode
+            try:
+                env_kwargs[env_id] = env_kwargs_for(model, env_id, args.env_kwargs)
+            except (ValueError, TypeError) as error:  # TypeError: a keyword the env does not take
+                fail(parser, f"{args.model}: {error}")
     for env_id in args.env:
-        policy = (
-            model if model is not None else load_policy(args.model, args.algo, env_id, args.env_kwargs)
-        )  # PD: one per task
-        rate = success_rate(policy, env_id, args.n_episodes, args.seed, not args.stochastic, args.env_kwargs)
-        print(f"{env_id}: success rate {rate:.3f} over {args.n_episodes} episodes (seed {args.seed})")
+        # PD: one per task, for its action mode and physics
+        policy = model if model is not None else load_policy(args.model, args.algo, env_id, env_kwargs[env_id])
+        rate = success_rate(policy, env_id, n_episodes, args.seed, not args.stochastic, env_kwargs[env_id], seeds)
+        action_mode = env_kwargs[env_id].get("action_mode", DEFAULT_ACTION_MODE)
+        print(f"{env_id}: success rate {rate:.3f} over {n_episodes} episodes ({episodes}, {action_mode} actions)")
 
 
 if __name__ == "__main__":

@@ -2,8 +2,11 @@
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -42,10 +45,26 @@ def zoo(tmp_path_factory) -> Zoo:
 
 @pytest.fixture(scope="module")
 def trained(zoo) -> Path:
-    """A zoo training of 200 gradient steps, evaluated every 100 (command-line values over the config's)."""
-    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "200", "--eval-freq", "100", "--eval-episodes", "2",
-            "-f", "logs", "-tb", "tb", "--seed", "0", *TINY)  # fmt: skip
+    """A zoo training of 200 gradient steps, evaluated every 100 (command-line values over the config's); its output
+    is kept in ``train_output.txt`` beside the logs."""
+    output = zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "200", "--eval-freq", "100", "--eval-episodes", "2",
+                     "-f", "logs", "-tb", "tb", "--seed", "0", *TINY)  # fmt: skip
+    (zoo.root / "train_output.txt").write_text(output)
     return zoo.root / "logs" / "cql" / "Panda-v0_1"
+
+
+def interrupt(zoo: Zoo, args: list[str], ready: Callable[[], bool], env: dict[str, str] | None = None):
+    """Run ``rl_zoo3.train ARGS`` as a real process, send it SIGINT (Ctrl-C) once ``ready()``, and return it ended,
+    with its output."""
+    process = subprocess.Popen([sys.executable, "-m", "rl_zoo3.train", *args], cwd=zoo.root, env=env or zoo.env,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.monotonic() + 300
+    while not ready() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert process.poll() is None, f"ended before it could be interrupted:\n{process.communicate()}"
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=300)
+    return process.returncode, stdout, stderr
 
 
 def python_in_fresh_interpreter(code: str) -> str:
@@ -90,6 +109,44 @@ def test_zoo_training_logs_evaluations_tensorboard_and_checkpoints(trained):
     for tag in ("train/critic_loss", "train/actor_loss", "train/cql_loss", "train/cql_q_data", "train/cql_q_random",
                 "train/cql_q_policy", "eval/success_rate", "eval/mean_reward"):  # fmt: skip
         assert tag in tags, tag
+
+
+def test_a_finished_training_says_where_its_models_are_and_how_to_use_them(zoo, trained):
+    last_lines = (zoo.root / "train_output.txt").read_text().strip().splitlines()[-3:]
+    assert last_lines == [
+        "models: logs/cql/Panda-v0_1/Panda-v0.zip (last), logs/cql/Panda-v0_1/best_model.zip (best evaluated)",
+        "evaluate on the three tasks: python -m sb3_cql.evaluate logs/cql/Panda-v0_1/best_model.zip --algo cql -n 100",
+        "record a video: python -m rl_zoo3.record_video --algo cql --env Panda-v0 -f logs --exp-id 1 --load-best -n 700",
+    ]
+
+
+def test_ctrl_c_during_training_keeps_the_model_and_says_so_in_one_line(zoo):
+    run = zoo.root / "logs" / "bc" / "Panda-v0_1"
+    status, stdout, stderr = interrupt(
+        zoo, ["--algo", "bc", "--env", "Panda-v0", "-n", "1000000", "--eval-freq", "50", "--eval-episodes", "1",
+              "-f", "logs", *TINY], ready=lambda: (run / "best_model.zip").is_file())  # fmt: skip
+    assert status == 130 and "Traceback" not in stderr
+    last_line = stdout.strip().splitlines()[-1]
+    step = int(last_line.split()[3])
+    assert last_line == (
+        f"interrupted at step {step} of 1000000: kept {run.relative_to(zoo.root)}/Panda-v0.zip (the model at that step)"
+        f" and the best evaluated so far, best_model.zip, in {run.relative_to(zoo.root)}"
+    )
+    from sb3_cql import BC
+
+    assert BC.load(run / "Panda-v0.zip").num_timesteps == step >= 50
+
+
+def test_ctrl_c_while_the_dataset_is_collected_leaves_no_run_folder(zoo):
+    # An empty datasets folder: the run collects its config's standard dataset (10,000 episodes) first.
+    env = {**zoo.env, "MINARI_DATASETS_PATH": str(zoo.root / "empty-datasets")}
+    logs = zoo.root / "logs-interrupted"
+    status, stdout, stderr = interrupt(
+        zoo, ["--algo", "cql", "--env", "Panda-v0", "-f", str(logs), *TINY],
+        ready=lambda: any((zoo.root / "empty-datasets").rglob("*.hdf5")), env=env)  # fmt: skip
+    assert status == 130 and "Traceback" not in stderr
+    assert "interrupted before training started: no model" in stderr
+    assert not list(logs.glob("cql/Panda-v0_*"))  # the next run is Panda-v0_1 again
 
 
 def test_enjoy_record_video_and_plots_work_on_the_trained_model(zoo, trained):

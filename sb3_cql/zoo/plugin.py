@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import functools
 import inspect
+import shutil
+import signal
 import sys
+import threading
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -75,9 +78,26 @@ def _left_at_default(option: str, value: Any, default: Any) -> bool:
     return value == default and not any(arg == option or arg.startswith(f"{option}=") for arg in sys.argv[1:])
 
 
+def _holds_a_model(folder: Path) -> bool:
+    """Whether a zoo run folder holds a saved model (any ``.zip``): a run that got as far as its first checkpoint."""
+    return any(folder.rglob("*.zip"))
+
+
+def _run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
+    """What to do with a run's models: evaluate on the three tasks, record a video (the zoo's own ``--exp-id``)."""
+    log_folder, exp_id = save_path.parent.parent, save_path.name.rsplit("_", 1)[-1]
+    model = save_path / ("best_model.zip" if (save_path / "best_model.zip").is_file() else f"{env_id}.zip")
+    return [
+        f"evaluate on the three tasks: python -m sb3_cql.evaluate {model} --algo {algo} -n 100",
+        f"record a video: python -m rl_zoo3.record_video --algo {algo} --env {env_id} -f {log_folder} --exp-id {exp_id}"
+        f"{' --load-best' if model.name == 'best_model.zip' else ''} -n 700",
+    ]
+
+
 def _extend_exp_manager(exp_manager: ModuleType) -> None:
     manager = exp_manager.ExperimentManager
     init, preprocess = manager.__init__, manager._preprocess_hyperparams
+    setup, learn, save = manager.setup_experiment, manager.learn, manager.save_trained_model
     init_signature = inspect.signature(init)
 
     @functools.wraps(init)
@@ -108,8 +128,63 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             self.args.env_kwargs = self.env_kwargs
         return result
 
+    @functools.wraps(setup)
+    def setup_experiment(self) -> Any:
+        # The zoo makes the run's folder before the model, whose dataset may first be collected: a run stopped there
+        # (Ctrl-C, an error) would leave a folder without a model, and shift the next run's number.
+        try:
+            return setup(self)
+        except BaseException as error:
+            folder = Path(self.save_path)
+            if folder.is_dir() and not _holds_a_model(folder):
+                shutil.rmtree(folder, ignore_errors=True)
+            if isinstance(error, KeyboardInterrupt):
+                # What the collection kept, if it was collecting, is on the line before.
+                print(f"interrupted before training started: no model, {folder} removed", file=sys.stderr)
+                raise SystemExit(130) from None
+            raise
+
+    @functools.wraps(learn)
+    def learn_(self, model: Any) -> None:
+        # The zoo ends training quietly on Ctrl-C (it catches KeyboardInterrupt) and saves the model: note that it
+        # was cut short, to say so after the save.
+        self._sb3_cql_interrupted = False
+        if threading.current_thread() is not threading.main_thread():
+            learn(self, model)
+            return
+
+        def note_and_interrupt(signum: int, frame: Any) -> None:
+            self._sb3_cql_interrupted = True
+            raise KeyboardInterrupt
+
+        previous = signal.signal(signal.SIGINT, note_and_interrupt)
+        try:
+            learn(self, model)
+        finally:
+            signal.signal(signal.SIGINT, previous)
+
+    @functools.wraps(save)
+    def save_trained_model(self, model: Any) -> None:
+        save(self, model)
+        if self.algo not in ALGOS:
+            return
+        folder, env_id = Path(self.save_path), self.env_name.gym_id
+        if getattr(self, "_sb3_cql_interrupted", False):
+            step = model.num_timesteps
+            best = " and the best evaluated so far, best_model.zip," if (folder / "best_model.zip").is_file() else ""
+            print(f"interrupted at step {step} of {self.n_timesteps}: kept {folder / env_id}.zip (the model at that step)"
+                  f"{best} in {folder}")  # fmt: skip
+            raise SystemExit(130)  # the shell's status for a run ended by Ctrl-C
+        best = f", {folder / 'best_model.zip'} (best evaluated)" if (folder / "best_model.zip").is_file() else ""
+        print(f"models: {folder / env_id}.zip (last){best}")
+        for line in _run_commands(self.algo, env_id, folder):
+            print(line)
+
     manager.__init__ = __init__
     manager._preprocess_hyperparams = _preprocess_hyperparams
+    manager.setup_experiment = setup_experiment
+    manager.learn = learn_
+    manager.save_trained_model = save_trained_model
 
 
 _EXTENSIONS = {
