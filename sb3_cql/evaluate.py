@@ -316,7 +316,10 @@ def main(argv: list[str] | None = None) -> None:
                 fail(parser, f"{args.model}: {error}")
     for env_id in args.env:
         # PD: one per task, for its action mode and physics
-        policy = model if model is not None else load_policy(args.model, args.algo, env_id, env_kwargs[env_id])
+        try:
+            policy = model if model is not None else load_policy(args.model, args.algo, env_id, env_kwargs[env_id])
+        except (ValueError, TypeError) as error:  # an action mode or a keyword the env does not take
+            fail(parser, f"{args.model} on {env_id}: {error}")
         rate = success_rate(policy, env_id, n_episodes, args.seed, not args.stochastic, env_kwargs[env_id], seeds)
         action_mode = env_kwargs[env_id].get("action_mode", DEFAULT_ACTION_MODE)
         print(f"{env_id}: success rate {rate:.3f} over {n_episodes} episodes ({episodes}, {action_mode} actions)")

@@ -289,8 +289,11 @@ def test_the_pd_controller_is_evaluated_in_the_action_mode_given(capsys):
 
     main(["pid", "--env", "Panda-v0", "-n", "2", "--env-kwargs", "action_mode:'delta'"])
     assert "Panda-v0: success rate 1.000 over 2 episodes" in capsys.readouterr().out
-    with pytest.raises(ValueError, match="action_mode"):
+    with pytest.raises(SystemExit) as error:
         main(["pid", "--env", "Panda-v0", "-n", "1", "--env-kwargs", "action_mode:'velocity'"])
+    assert error.value.code == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("python -m sb3_cql.evaluate: error: pid on Panda-v0:") and "action_mode" in line
 
 
 @pytest.mark.parametrize("items", [["action_mode:'delta'", "model.zip"], ["action_mode:delta"]])
