@@ -103,12 +103,20 @@ def test_a_second_run_does_no_work_and_report_only_remakes_the_outputs(bench, qu
 
 
 def test_clear_errors(bench, quick):
-    result = bench.run("--algos", "cql", "nothing", "--results-dir", "errors", check=False)
-    assert result.returncode != 0 and "unknown algo 'nothing'" in result.stderr
-    result = bench.run("--algos", "pid", "--results-dir", "quick", "--episodes", "3", check=False)
-    assert result.returncode != 0 and "other settings" in result.stderr
-    result = bench.run("--report-only", "--results-dir", "nowhere", check=False)
-    assert result.returncode != 0 and "no protocol results" in result.stderr
+    def one_line_error(*args: str) -> str:
+        result = bench.run(*args, check=False)
+        assert result.returncode == 2 and "Traceback" not in result.stderr
+        (line,) = result.stderr.strip().splitlines()
+        assert line.startswith("python -m sb3_cql.benchmark: error: ")
+        return line
+
+    assert "unknown algo 'nothing'" in one_line_error("--algos", "cql", "nothing", "--results-dir", "errors")
+    assert "other settings" in one_line_error("--algos", "pid", "--results-dir", "quick", "--episodes", "3")
+    assert "no protocol results" in one_line_error("--report-only", "--results-dir", "nowhere")
+    missing = one_line_error("--algos", "bc", "--results-dir", "errors", "--zoo-args",
+                             "--hyperparams dataset:\"'sb3cql/Panda-v0/nothing-here-v0'\"")  # fmt: skip
+    assert "dataset sb3cql/Panda-v0/nothing-here-v0 not found" in missing
+    assert not (bench.root / "errors" / "runs").exists()  # refused before any work
 
 
 def test_a_failing_zoo_run_shows_its_log(bench):

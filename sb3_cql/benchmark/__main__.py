@@ -76,8 +76,9 @@ def main(argv: list[str] | None = None) -> None:
         elif read_json(results.protocol) is None:
             raise BenchmarkError(f"{results.root} holds no protocol results")
         make_outputs(results, args.tasks, filmstrips=not args.no_filmstrips)
-    except BenchmarkError as error:
-        sys.exit(f"error: {error}")
+    except BenchmarkError as error:  # bad input, found before any work: a usage error
+        print(f"python -m sb3_cql.benchmark: error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
     if failed is not None:
         sys.exit(f"error: {failed}")
 

@@ -22,6 +22,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 import envs
 from sb3_cql.benchmark.records import ResultsFolder, read_json, system_info, write_json
 from sb3_cql.benchmark.runs import Run
@@ -116,6 +118,38 @@ class Protocol:
                 raise BenchmarkError(f"unknown algo {algo!r}: one of {sorted([*ALGOS, *SCRIPTED])}")
             if not own_config and config_file(algo, TRAIN_ENV) is None:
                 raise BenchmarkError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
+            if not own_config:
+                _check_dataset(self._dataset_id(algo, config_file(algo, TRAIN_ENV)))
+
+    def _dataset_id(self, algo: str, config: Path) -> str | None:
+        """The dataset ``algo`` trains on: its config's ``dataset`` for :data:`TRAIN_ENV`, or the one a
+        ``--hyperparams dataset:...`` item of the zoo arguments gives (evaluated as the zoo evaluates it)."""
+        dataset = (yaml.safe_load(config.read_text()) or {}).get(TRAIN_ENV, {}).get("dataset")
+        for item in self.settings.zoo_args:
+            key, _, value = item.partition(":")
+            if key == "dataset" and value:
+                try:
+                    dataset = eval(value)  # the zoo's own StoreDict does the same with the item
+                except Exception:
+                    raise BenchmarkError(f"--zoo-args: {item!r} is not dataset:\"'ID'\" (a quoted string)") from None
+        return dataset if isinstance(dataset, str) else None
+
+
+def _check_dataset(dataset_id: str | None) -> None:
+    """A dataset a training needs must exist, or be a standard one that the training collects first: otherwise the
+    error names it (missing, or partial: an interrupted collection) before any work starts."""
+    from sb3_cql.data import DatasetError, load_dataset
+    from sb3_cql.data.ids import dataset_exists, parse_dataset_id
+
+    if dataset_id is None or dataset_exists(dataset_id):
+        return
+    parsed = parse_dataset_id(dataset_id)
+    if parsed is not None and parsed[3] == 0 and parsed[0] in envs.ENV_IDS:
+        return  # collected on the first run (sb3_cql.data.ensure_dataset)
+    try:
+        load_dataset(dataset_id)
+    except DatasetError as error:
+        raise BenchmarkError(str(error)) from None
 
 
 def _die_with_parent(parent: int) -> None:
