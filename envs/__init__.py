@@ -5,6 +5,8 @@ Importing this package registers the gymnasium ids in :data:`ENV_IDS`.
 
 import gymnasium
 
+# First: envs.simulator imports PyBullet with its start-up message silenced (envs.robot and envs.task import it too).
+from envs import simulator  # noqa: F401
 from envs.config import GraspConfig
 from envs.panda_env import OBSERVATION_SLICES, PandaGraspEnv
 from envs.pd_controller import CONTROLLERS, PDController

@@ -1,11 +1,67 @@
-"""A thin wrapper owning one PyBullet physics client, so that many environments live in one process."""
+"""A thin wrapper owning one PyBullet physics client, so that many environments live in one process.
+
+This module is the first to import PyBullet (``envs`` imports it before the others) and the one that connects to it:
+PyBullet's C code prints ``pybullet build time: ...`` when it is imported and ``argv[0]=`` when it connects, straight
+to the process's file descriptors, and both are sent to ``os.devnull`` here.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import os
+import sys
+from collections.abc import Iterator
+
 import numpy as np
-import pybullet
-import pybullet_data
-from pybullet_utils.bullet_client import BulletClient
+
+try:  # The C library's fflush: what C code prints may wait in its buffers (a pipe or a file is fully buffered).
+    _fflush = ctypes.CDLL(None).fflush
+except (AttributeError, OSError, TypeError):  # no process-wide C library handle (Windows)
+    _fflush = None
+
+
+def _flush_output() -> None:
+    """Write out what Python and C hold in their stdout and stderr buffers."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # a closed or replaced stream
+            stream.flush()
+    if _fflush is not None:
+        _fflush(None)
+
+
+@contextlib.contextmanager
+def silenced(*fds: int) -> Iterator[None]:
+    """Send what is written to the file descriptors ``fds`` (1: stdout, 2: stderr) to ``os.devnull`` while the block
+    runs, C code's output included, whether they are a terminal, a pipe or a file. The buffers are flushed first (so
+    nothing written before is lost) and at the end (so nothing written inside comes out later). The descriptors are
+    the process's: another thread's output during the block is lost too.
+
+    :param fds: the file descriptors to silence; one that is closed is left alone.
+    """
+    _flush_output()
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    saved = []
+    try:
+        for fd in fds:
+            try:
+                saved.append((fd, os.dup(fd)))
+            except OSError:  # a closed descriptor: nothing to silence
+                continue
+            os.dup2(devnull, fd)
+        yield
+    finally:
+        _flush_output()
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(devnull)
+
+
+with silenced(1, 2):  # pybullet build time: ... (on stderr with PyBullet 3.2.7)
+    import pybullet
+    import pybullet_data
+    from pybullet_utils.bullet_client import BulletClient
 
 
 class Simulator:
@@ -29,7 +85,8 @@ class Simulator:
     ) -> None:
         self.render_mode = render_mode
         mode = pybullet.GUI if render_mode == "human" else pybullet.DIRECT
-        self.client = BulletClient(connection_mode=mode)
+        with silenced(1):  # argv[0]= (on stdout); in GUI mode, also the OpenGL details PyBullet prints
+            self.client = BulletClient(connection_mode=mode)
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
         if render_mode == "human":
             self.client.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)

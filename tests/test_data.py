@@ -1,6 +1,12 @@
 """Collection of Minari datasets and their loading into SB3's ReplayBuffer."""
 
 import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
 
 import gymnasium as gym
 import minari
@@ -103,9 +109,9 @@ def test_existing_dataset_is_not_overwritten_without_asking():
     assert replaced.total_episodes == 2
 
 
-def interrupt_collection_at(monkeypatch, interrupted_index: int, calls: list[int]):
-    """Make episode ``interrupted_index`` raise KeyboardInterrupt, write every episode, record the episodes run in
-    ``calls``; return the real episode function."""
+def interrupt_collection_at(monkeypatch, interrupted_index: int, calls: list[int], write_every: int | None = 1):
+    """Make episode ``interrupted_index`` raise KeyboardInterrupt (as Ctrl-C does), write every ``write_every``
+    episodes (``None``: ``WRITE_EVERY``), record the episodes run in ``calls``; return the real episode function."""
     run_episode = collection_module._run_episode
 
     def interrupted(index):
@@ -114,25 +120,37 @@ def interrupt_collection_at(monkeypatch, interrupted_index: int, calls: list[int
             raise KeyboardInterrupt
         return run_episode(index)
 
-    monkeypatch.setattr(collection_module, "WRITE_EVERY", 1)
+    if write_every is not None:
+        monkeypatch.setattr(collection_module, "WRITE_EVERY", write_every)
     monkeypatch.setattr(collection_module, "_run_episode", interrupted)
     return run_episode
 
 
-def test_interrupted_collection_leaves_no_dataset_and_resumes(monkeypatch):
+def test_interrupted_collection_keeps_its_episodes_says_so_and_resumes(monkeypatch, capsys):
     spec = CollectionSpec(policy="noisy", n_episodes=4)
     calls = []
-    run_episode = interrupt_collection_at(monkeypatch, 2, calls)
+    # Episodes are written 50 at a time: the two finished before Ctrl-C are written when it comes.
+    run_episode = interrupt_collection_at(monkeypatch, 2, calls, write_every=None)
     with pytest.raises(KeyboardInterrupt):
         collect_dataset(spec, progress_bar=False)
+    lines = capsys.readouterr().err.splitlines()
+    plan = (
+        r"collecting sb3cql/Panda-v0/noisy-v0: 4 episodes with 1 worker, about \d+ s and \d+ kB of disk \([\d,]+ transitions\)"
+    )
+    assert re.fullmatch(plan, lines[0])
+    assert lines[1:] == ["interrupted: 2 of 4 episodes of sb3cql/Panda-v0/noisy-v0 kept; the same command resumes"]
     assert not dataset_path("sb3cql/Panda-v0/noisy-v0").exists()
-    with pytest.raises(DatasetError, match="not found"):
+    command = "python -m sb3_cql.data collect --env Panda-v0 --policy noisy --episodes 4 --seed 0"
+    with pytest.raises(DatasetError, match=rf"noisy-v0 is partial: .* after 2 of 4 episodes .*resume it with: {command}"):
         load_dataset("sb3cql/Panda-v0/noisy-v0")
 
     monkeypatch.setattr(collection_module, "_run_episode", lambda index: calls.append(index) or run_episode(index))
     calls.clear()
     resumed = collect_dataset(spec, progress_bar=False)
     assert calls == [2, 3]
+    assert capsys.readouterr().err.startswith(
+        "resuming sb3cql/Panda-v0/noisy-v0: 2 of 4 episodes already collected; the other 2 with 1 worker, about "
+    )
     assert_same_data(resumed, collect_dataset(spec, "sb3cql/Panda-v0/fresh-v0", progress_bar=False))
 
 
@@ -209,8 +227,14 @@ def test_missing_dataset_is_named_in_the_error():
         load_dataset("sb3cql/Panda-v0/nothing-v0")
 
 
-def test_missing_standard_dataset_is_collected_once():
-    dataset = ensure_dataset("sb3cql/Panda-v0/pid-delta-v0", n_episodes=2, progress_bar=False)
+def test_missing_standard_dataset_is_collected_once(capsys):
+    dataset = ensure_dataset("sb3cql/Panda-v0/pid-delta-v0", n_episodes=2, workers=1, progress_bar=False)
+    (line,) = capsys.readouterr().err.splitlines()
+    plan = r"collecting sb3cql/Panda-v0/pid-delta-v0: 2 episodes with 1 worker, about \d+ s and (\d+) kB of disk "
+    plan += r"\(356 transitions\)"
+    estimated_size = int(re.fullmatch(plan, line).group(1)) * 1000
+    size = sum(file.stat().st_size for file in dataset_path("sb3cql/Panda-v0/pid-delta-v0").rglob("*") if file.is_file())
+    assert abs(estimated_size - size) < 0.2 * size  # the disk estimate is a fair one
     metadata = dataset.storage.metadata
     assert dataset.total_episodes == 2 and metadata["dataset_id"] == "sb3cql/Panda-v0/pid-delta-v0"
     assert dataset.recover_environment().unwrapped.action_mode == "delta"
@@ -254,10 +278,7 @@ def test_command_line_collects_and_describes(capsys):
 
 def test_killed_worker_stops_the_collection_with_a_clear_error(minari_root):
     import multiprocessing
-    import os
-    import signal
     import threading
-    import time
 
     spec = CollectionSpec(policy="noisy", n_episodes=60)
     outcome = {}
@@ -279,3 +300,104 @@ def test_killed_worker_stops_the_collection_with_a_clear_error(minari_root):
     assert not thread.is_alive(), "the collection hung after a worker was killed"
     assert isinstance(outcome.get("error"), RuntimeError) and "worker died" in str(outcome["error"])
     assert not dataset_path("sb3cql/Panda-v0/noisy-v0").exists()
+
+
+def run_data_cli(args: list[str], minari_root, **kwargs) -> subprocess.Popen:
+    """Start ``python -m sb3_cql.data ARGS`` in a process group of its own, as a terminal would."""
+    env = {**os.environ, "MINARI_DATASETS_PATH": str(minari_root)}
+    command = [sys.executable, "-m", "sb3_cql.data", *args]
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, **kwargs)
+
+
+def test_ctrl_c_stops_the_command_line_collection_and_the_same_command_resumes(minari_root):
+    args = ["collect", "--policy", "pid", "--episodes", "30", "--workers", "2", "--write-every", "2"]
+    process = run_data_cli(args, minari_root, start_new_session=True)
+    partial_metadata = minari_root / "sb3cql" / "Panda-v0" / ".pid-v0.partial" / "data" / "metadata.json"
+    try:
+        while process.poll() is None:  # until the first 2 episodes are on disk
+            try:
+                if json.loads(partial_metadata.read_text())["total_episodes"] >= 2:
+                    break
+            except (OSError, ValueError):  # not there yet, or being written
+                pass
+            time.sleep(0.05)
+        assert process.poll() is None, "the collection ended before it could be interrupted"
+        os.killpg(process.pid, signal.SIGINT)  # Ctrl-C: to the command and its workers
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+
+    assert process.returncode == 130
+    assert "Traceback" not in stderr and stdout == ""
+    assert "argv[0]=" not in stderr and "pybullet build time" not in stderr  # nor from PyBullet in the workers
+    (interrupted,) = [line for line in stderr.splitlines() if "interrupted" in line]
+    kept = int(
+        re.fullmatch(
+            r"interrupted: (\d+) of 30 episodes of sb3cql/Panda-v0/pid-v0 kept; the same command resumes", interrupted
+        )[1]
+    )
+    assert 2 <= kept < 30 and json.loads(partial_metadata.read_text())["total_episodes"] == kept
+    assert not dataset_path("sb3cql/Panda-v0/pid-v0").exists()
+
+    rerun = run_data_cli(args, minari_root)
+    stdout, stderr = rerun.communicate(timeout=120)
+    assert rerun.returncode == 0, stderr
+    assert "argv[0]=" not in stdout + stderr and "pybullet build time" not in stdout + stderr
+    assert (
+        f"resuming sb3cql/Panda-v0/pid-v0: {kept} of 30 episodes already collected; the other {30 - kept} with 2 workers"
+        in stderr
+    )
+    assert stdout.startswith("sb3cql/Panda-v0/pid-v0: 30 episodes")
+    fresh = collect_dataset(CollectionSpec(n_episodes=30), "sb3cql/Panda-v0/fresh-v0", progress_bar=False)
+    assert_same_data(load_dataset("sb3cql/Panda-v0/pid-v0"), fresh)
+
+
+def test_command_line_errors_are_one_line_with_status_2(monkeypatch, capsys, tmp_path):
+    def error_of(args: list[str]) -> str:
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as exit_info:
+            data_cli(args)
+        assert exit_info.value.code == 2
+        return capsys.readouterr().err
+
+    def one_line(args: list[str]) -> str:
+        (line,) = error_of(args).splitlines()
+        assert line.startswith(
+            "python -m sb3_cql.data: error: dataset " if "info" in args else "python -m sb3_cql.data: error: "
+        )
+        return line
+
+    assert "sb3cql/Panda-v0/nothing-v0 not found" in one_line(["info", "sb3cql/Panda-v0/nothing-v0"])
+    assert "sb3cql/Panda-v0/nothing-v0 not found" in one_line(
+        ["mix", "--dataset-id", "sb3cql/Panda-v0/mixed-v0", "sb3cql/Panda-v0/nothing-v0"]
+    )
+
+    run_episode = interrupt_collection_at(monkeypatch, 1, [])
+    with pytest.raises(KeyboardInterrupt):
+        collect_dataset(CollectionSpec(policy="random", n_episodes=3), progress_bar=False)
+    monkeypatch.setattr(collection_module, "_run_episode", run_episode)
+    partial = one_line(["info", "sb3cql/Panda-v0/random-v0"])
+    assert "random-v0 is partial: its collection was interrupted after 1 of 3 episodes" in partial
+    assert "resume it with: python -m sb3_cql.data collect --env Panda-v0 --policy random --episodes 3" in partial
+
+    collect_dataset(CollectionSpec(n_episodes=1), progress_bar=False)
+    assert "already exists" in one_line(["collect", "--episodes", "1"])
+    data_file = dataset_path("sb3cql/Panda-v0/pid-v0") / "data" / "main_data.hdf5"
+    data_file.write_bytes(data_file.read_bytes()[: data_file.stat().st_size // 2])
+    assert "truncated or corrupt" in one_line(["info", "sb3cql/Panda-v0/pid-v0"])
+
+    assert "invalid choice: 'Nothing-v0'" in error_of(["collect", "--env", "Nothing-v0"])
+    model = tmp_path / "model.zip"
+    model.write_bytes(b"not a model")
+    assert f"cannot load {model} as a sac model" in one_line(["collect", "--policy", str(model), "--algo", "sac"])
+    assert "unknown algo 'nothing'" in one_line(["collect", "--policy", str(model), "--algo", "nothing"])
+    assert not dataset_path("sb3cql/Panda-v0/model-v0").exists()
+
+
+def test_command_line_error_has_no_traceback(minari_root):
+    process = run_data_cli(["info", "sb3cql/Panda-v0/nothing-v0"], minari_root)
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 2 and stdout == ""
+    assert stderr.startswith("python -m sb3_cql.data: error: dataset sb3cql/Panda-v0/nothing-v0 not found")
+    assert len(stderr.splitlines()) == 1

@@ -1,5 +1,8 @@
 """Behaviour of the three grasping tasks."""
 
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -297,3 +300,25 @@ def test_pd_example_saves_a_video(tmp_path):
     assert successes == [True]
     videos = list(tmp_path.glob("*.mp4"))
     assert len(videos) == 1 and videos[0].stat().st_size > 10_000
+
+
+MAKE_AND_RESET = "import gymnasium as gym, envs; e = gym.make('Panda-v0'); e.reset(seed=0); print('ok')"
+
+
+def pybullet_noise(output: str) -> list[str]:
+    return [line for line in output.splitlines() if "pybullet build time" in line or "argv[0]=" in line]
+
+
+def test_pybullet_prints_nothing_when_imported_and_connected(tmp_path):
+    result = subprocess.run([sys.executable, "-c", MAKE_AND_RESET], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "ok\n"  # through a pipe
+    assert pybullet_noise(result.stderr) == []
+
+    # Into files, with output before PyBullet's start-up: kept, in order.
+    code = "import sys; print('before'); sys.stderr.write('before\\n'); " + MAKE_AND_RESET
+    with open(tmp_path / "out", "w") as out, open(tmp_path / "err", "w") as err:
+        subprocess.run([sys.executable, "-c", code], stdout=out, stderr=err, check=True, timeout=120)
+    assert (tmp_path / "out").read_text() == "before\nok\n"
+    errors = (tmp_path / "err").read_text()
+    assert errors.startswith("before\n") and pybullet_noise(errors) == []

@@ -5,22 +5,31 @@ python -m sb3_cql.data collect --env Panda-v0 --policy noisy --noise 0.03 --epis
 python -m sb3_cql.data collect --env Panda-v0 --policy logs/sac/Panda-v0_1/best_model.zip --algo sac
 python -m sb3_cql.data mix --dataset-id sb3cql/Panda-v0/mixed-v0 sb3cql/Panda-v0/pid-v0 sb3cql/Panda-v0/noisy-v0
 python -m sb3_cql.data info sb3cql/Panda-v0/pid-v0
+
+A collection prints what it will do before it starts. Ctrl-C stops it with one line saying how many episodes are
+kept (exit status 130); the same command resumes it. A missing, partial or corrupt dataset, an unknown env id or a
+model that cannot be loaded is one line on stderr (exit status 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
+import sys
+
+import gymnasium
 
 import envs
-from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset, mix_datasets
+from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset, mix_datasets
+from sb3_cql.data.collection import WRITE_EVERY
 from sb3_cql.data.ids import POLICIES, dataset_path
+
+PROG = "python -m sb3_cql.data"
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m sb3_cql.data", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     commands = parser.add_subparsers(dest="command", required=True)
 
     collect = commands.add_parser("collect", help="roll out a behaviour policy into a Minari dataset")
@@ -34,6 +43,12 @@ def main(argv: list[str] | None = None) -> None:
     collect.add_argument("--workers", type=int, default=1)
     collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
     collect.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that id")
+    collect.add_argument(
+        "--write-every",
+        type=int,
+        default=WRITE_EVERY,
+        help="episodes written to disk at a time (%(default)s): the most a crash loses",
+    )
 
     mix = commands.add_parser("mix", help="combine existing datasets into a new one")
     mix.add_argument("--dataset-id", required=True, help="id of the combined dataset")
@@ -44,6 +59,19 @@ def main(argv: list[str] | None = None) -> None:
     info.add_argument("dataset_id")
 
     args = parser.parse_args(argv)
+    try:
+        _run(args)
+    except KeyboardInterrupt:
+        if args.command == "mix":
+            print(f"interrupted: {args.dataset_id} not written", file=sys.stderr)
+        # collect printed what it kept; info wrote nothing
+        raise SystemExit(130) from None
+    except (DatasetError, FileExistsError, ValueError, OSError, gymnasium.error.Error) as error:
+        print(f"{PROG}: error: {' '.join(str(error).split())}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _run(args: argparse.Namespace) -> None:
     if args.command == "collect":
         spec = CollectionSpec(
             env_id=args.env,
@@ -54,7 +82,9 @@ def main(argv: list[str] | None = None) -> None:
             env_kwargs={"action_mode": args.action_mode} if args.action_mode != "absolute" else {},
             algo=args.algo,
         )
-        dataset = collect_dataset(spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite)
+        dataset = collect_dataset(
+            spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite, write_every=args.write_every
+        )
         metadata = dataset.storage.metadata
         print(
             f"{metadata['dataset_id']}: {dataset.total_episodes} episodes, {dataset.total_steps} transitions, "
@@ -71,4 +101,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C prints no traceback either

@@ -3,15 +3,24 @@
 Episode ``i`` of a collection is reset with ``seed + i`` and draws its noise from a generator seeded with
 ``(seed, i)``, so a dataset does not depend on the number of workers and an interrupted collection resumes
 exactly where it stopped.
+
+Before it starts, a collection prints (on stderr) what it will do: the episodes, the workers, and about how long
+and how much disk it takes, from the measurements below; a resumed one says how many episodes it already has. On
+Ctrl-C, the episodes finished in order are written, one line says how many are kept, and ``KeyboardInterrupt`` goes
+on to the caller; the workers ignore Ctrl-C, and the parent stops them.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import multiprocessing
 import os
 import shutil
+import signal
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -32,13 +41,40 @@ from tqdm import tqdm
 
 import envs
 from sb3_cql.data import ids
-from sb3_cql.data.ids import DEFAULT_NOISE, NOISY_POLICIES, POLICIES
+from sb3_cql.data.ids import DEFAULT_NOISE, NOISY_POLICIES, POLICIES, SPEC_FILE
 from sb3_cql.data.replay import load_dataset
 
-#: Episodes written to disk at a time: the most an interruption can lose.
+#: Episodes written to disk at a time: the most a crash (a killed process, a power cut) can lose. Ctrl-C loses none
+#: of the finished ones: they are written before the collection stops.
 WRITE_EVERY = 50
-#: Name of the file describing a collection in progress (to resume only the same collection).
-SPEC_FILE = "collection.json"
+
+# The estimates a collection prints before it starts, measured on this project's 2-core machine. "About" is meant:
+# other jobs on the CPUs slow a collection down (beside them, the collections of 2026-12-01 below ran at 30 to 75% of
+# the rate below).
+
+#: Mean transitions of an episode by task and policy: the PD controllers finish most Panda-v0 episodes in ~178 steps,
+#: the noisy ones run most of them to the 700-step limit. Means over ``python -m sb3_cql.data collect --env ENV
+#: --policy POLICY --episodes N`` (2026-12-01) with N = 100 to 200 for Panda-v0's noisy policies and PD controller,
+#: 15 to 60 for the others; the action mode changes them by ~3% (Panda-v0's noisy-regrasp: 585 delta, 570 absolute).
+EPISODE_STEPS = {
+    "Panda-v0": {"pid": 178, "pid-regrasp": 178, "noisy": 629, "noisy-regrasp": 580, "random": 700},
+    "PandaForce-v0": {"pid": 700, "pid-regrasp": 674, "noisy": 652, "noisy-regrasp": 700, "random": 700},
+    "PandaPerturbed-v0": {"pid": 258, "pid-regrasp": 258, "noisy": 680, "noisy-regrasp": 642, "random": 700},
+}
+#: Transitions/s of one worker running a PD controller (noisy or not): 1,255 in ``python benchmarks/collect_speed.py``
+#: (2026-11-22; 2,598 with 2 workers). Uniform random actions skip the controller's inverse kinematics: 1.8 to 2.2
+#: times faster in back-to-back collections (2026-12-01). A model policy's speed is not estimated.
+TRANSITIONS_PER_S = {"controller": 1_250, "random": 2_500}
+#: Seconds before a worker's first episode (interpreter, imports, env and controller): 1.7 to 2.1 s in ``python -c
+#: "from sb3_cql.data import collection as c; c._init_worker(c.CollectionSpec())"`` (2026-12-01, on a busy machine).
+WORKER_START_S = 2.0
+#: Disk of a dataset: per episode (HDF5 groups and attributes) and per transition (29 float32 observations, 9 float32
+#: actions, a float64 reward, two flags, and HDF5's chunks); policies with noise also keep the clean actions
+#: (``infos["clean_action"]``). Fitted 2026-12-01 to the HDF5 files of the collections above: 192 B a transition for
+#: 700-step episodes without noise, 245 B for 178-step ones, 239-241 B for the noisy policies' ~600-step episodes.
+BYTES_PER_EPISODE = 12_500
+BYTES_PER_TRANSITION = 175
+CLEAN_ACTION_BYTES_PER_TRANSITION = 45
 
 Policy = Callable[[np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray | None]]
 
@@ -104,7 +140,12 @@ def make_policy(spec: CollectionSpec, env: gym.Env) -> Policy:
     else:
         from rl_zoo3.utils import ALGOS
 
-        model = ALGOS[spec.algo].load(spec.policy, device="cpu")
+        if spec.algo not in ALGOS:
+            raise ValueError(f"unknown algo {spec.algo!r} for the model policy {spec.policy}: one of {sorted(ALGOS)}")
+        try:
+            model = ALGOS[spec.algo].load(spec.policy, device="cpu")
+        except Exception as error:
+            raise ValueError(f"cannot load {spec.policy} as a {spec.algo} model: {error}") from error
         predict = model.predict
     if spec.noise == 0:
         return lambda observation, rng: (predict(observation, deterministic=True)[0], None)
@@ -128,6 +169,16 @@ _worker: dict[str, Any] = {}
 def _init_worker(spec: CollectionSpec) -> None:
     env = gym.make(spec.env_id, **spec.env_kwargs)
     _worker.update(spec=spec, env=env, policy=make_policy(spec, env))
+
+
+def _init_pool_worker(spec: CollectionSpec) -> None:
+    """Set up a worker process. Ctrl-C reaches every process of the terminal's group: a worker ignores it (no
+    traceback from it), and the parent stops the collection. The worker started with SIGINT blocked
+    (:func:`_sigint_blocked`), so one sent before this point is dropped too."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    _init_worker(spec)
 
 
 def _run_episode(index: int) -> EpisodeBuffer:
@@ -177,16 +228,123 @@ def _episodes(spec: CollectionSpec, start: int, workers: int) -> Iterator[Episod
         return
     # spawn, not fork: a parent holding torch threads or a PyBullet client must not be copied. An executor, not
     # a Pool: a killed worker raises BrokenProcessPool instead of hanging the collection.
-    executor = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), _init_worker, (spec,))
+    executor = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), _init_pool_worker, (spec,))
+    finished = False
     try:
-        yield from executor.map(_run_episode, indices, chunksize=4)
+        # One episode a task (an episode takes 0.1 to 1 s, a task's messages ~1 ms): every episode finished in order
+        # reaches this process, to be kept if the collection is interrupted.
+        with _sigint_blocked():  # the workers start (at the first submissions) with Ctrl-C blocked, until they ignore it
+            futures = [executor.submit(_run_episode, index) for index in indices]
+        for future in futures:
+            yield future.result()
+        finished = True
     except BrokenProcessPool as error:
         raise RuntimeError(
             f"a collection worker died (killed, or out of memory); the episodes written so far are kept and "
             f"running the same collection again resumes it: {error}"
         ) from error
     finally:
-        executor.shutdown(wait=False, cancel_futures=True)
+        if finished:
+            executor.shutdown(wait=False)
+        else:  # interrupted or failed: the episodes in progress are not kept, their workers are stopped
+            with _sigint_deferred(reraise=False):  # a second Ctrl-C meanwhile changes nothing
+                _stop_workers(executor)
+
+
+def _stop_workers(executor: ProcessPoolExecutor) -> None:
+    """Shut ``executor`` down without waiting for its tasks: terminate its workers, then wait for the executor to
+    fail the pending futures and close its pipes. No future is cancelled first: in Python 3.11, the executor's thread
+    raises InvalidStateError on a cancelled one when it finds its workers gone, and exiting before that thread is done
+    can write to a pipe it closes (EBADF)."""
+    for process in list((getattr(executor, "_processes", None) or {}).values()):
+        process.terminate()
+    executor.shutdown(wait=True)
+
+
+@contextlib.contextmanager
+def _sigint_blocked() -> Iterator[None]:
+    """Block SIGINT in this thread while the block runs (POSIX; elsewhere nothing): processes started meanwhile
+    inherit the block, and a Ctrl-C arriving meanwhile is delivered after it."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextlib.contextmanager
+def _sigint_deferred(reraise: bool = True) -> Iterator[None]:
+    """Hold a Ctrl-C (SIGINT) back until the block is done, so that a write to the dataset is never cut in half, then
+    raise ``KeyboardInterrupt`` (or call the handler there was) if one came and ``reraise``. Only the main thread
+    receives signals: in another one, the block just runs."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None:
+        yield
+        return
+    received = []
+    signal.signal(signal.SIGINT, lambda signum, frame: received.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if received and reraise:
+        if callable(previous):
+            previous(signal.SIGINT, received[0])
+        elif previous == signal.SIG_DFL:
+            raise KeyboardInterrupt
+
+
+def estimate(spec: CollectionSpec, n_episodes: int, workers: int) -> tuple[int, float | None, int]:
+    """About how many transitions, seconds and bytes of disk ``n_episodes`` episodes of ``spec`` take with
+    ``workers`` processes (one per CPU at most), at the speeds measured on this project's 2-core machine: from
+    :data:`EPISODE_STEPS`, :data:`TRANSITIONS_PER_S`, :data:`WORKER_START_S` and the disk constants. A model policy's
+    episodes are counted at the time limit (at most) and its time is ``None``."""
+    steps = EPISODE_STEPS.get(spec.env_id, {}).get(spec.policy, envs.MAX_EPISODE_STEPS)
+    transitions = n_episodes * steps
+    seconds = None
+    if spec.policy in POLICIES:
+        rate = TRANSITIONS_PER_S["random" if spec.policy == "random" else "controller"]
+        seconds = WORKER_START_S + transitions / (rate * max(1, min(workers, os.cpu_count() or 1, n_episodes)))
+    per_transition = BYTES_PER_TRANSITION + (CLEAN_ACTION_BYTES_PER_TRANSITION if spec.noise else 0)
+    return transitions, seconds, n_episodes * BYTES_PER_EPISODE + transitions * per_transition
+
+
+def _plan(spec: CollectionSpec, dataset_id: str, workers: int, start: int) -> str:
+    """The line a collection prints before it starts (``start`` episodes already collected)."""
+    remaining = spec.n_episodes - start
+    transitions, seconds, size = estimate(spec, remaining, workers)
+    if seconds is None:
+        cost = f"at most {_size(size)} of disk ({transitions:,} transitions); a model policy's time is not estimated"
+    else:
+        cost = f"about {_duration(seconds)} and {_size(size)} of disk ({transitions:,} transitions)"
+    with_workers = f"with {workers} worker{'s' if workers > 1 else ''}"
+    if start == 0:
+        return f"collecting {dataset_id}: {spec.n_episodes} episodes {with_workers}, {cost}"
+    if remaining == 0:
+        return f"resuming {dataset_id}: {start} of {spec.n_episodes} episodes already collected, none left"
+    return (
+        f"resuming {dataset_id}: {start} of {spec.n_episodes} episodes already collected; "
+        f"the other {remaining} {with_workers}, {cost}"
+    )
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{max(1, round(seconds))} s"
+    if seconds < 90 * 60:
+        return f"{round(seconds / 60)} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _size(size: float) -> str:
+    if size < 1e6:
+        return f"{max(1, round(size / 1e3))} kB"
+    if size < 1e9:
+        return f"{round(size / 1e6)} MB"
+    return f"{size / 1e9:.1f} GB"
 
 
 def _open_partial(partial: Path, spec: CollectionSpec, env: gym.Env) -> tuple[MinariStorage, list[bool]]:
@@ -213,48 +371,93 @@ def collect_dataset(
     workers: int = 1,
     overwrite: bool = False,
     progress_bar: bool = True,
+    write_every: int | None = None,
 ) -> MinariDataset:
     """Collect ``spec.n_episodes`` episodes into the Minari dataset ``dataset_id`` and return it.
 
-    The data go to a hidden ``.partial`` folder beside the dataset, ``WRITE_EVERY`` episodes at a time, and are
+    The data go to a hidden ``.partial`` folder beside the dataset, ``write_every`` episodes at a time, and are
     renamed to the dataset's folder only when complete: an interrupted collection leaves no dataset under its
     id, and running the same collection again resumes it. Actions are the executed ones; with noise, the
     policy's clean actions are in the episodes' ``infos["clean_action"]``.
+
+    It prints (on stderr) one line before it starts: the episodes, the workers and about how long and how much disk
+    they take, or, resuming, how many episodes it already has. On Ctrl-C (``KeyboardInterrupt``), it writes the
+    episodes finished so far, prints one line saying how many are kept, and raises the ``KeyboardInterrupt`` again.
 
     :param spec: what to collect.
     :param dataset_id: the Minari id; by default ``sb3cql/<env>/<policy>[-delta]-v0``.
     :param workers: worker processes; the data do not depend on it.
     :param overwrite: replace an existing dataset of that id (otherwise ``FileExistsError``).
     :param progress_bar: show episodes, transitions/s and the success rate so far.
+    :param write_every: episodes written to disk at a time (``WRITE_EVERY`` by default): the most a crash loses.
     """
     policy_name = spec.policy if spec.policy in POLICIES else Path(spec.policy).stem
     dataset_id = dataset_id or ids.dataset_id(spec.env_id, policy_name, spec.action_mode)
+    write_every = WRITE_EVERY if write_every is None else write_every
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if write_every < 1:
+        raise ValueError(f"write_every must be >= 1, got {write_every}")
     final = _prepare(dataset_id, overwrite)
 
-    env = gym.make(spec.env_id, **spec.env_kwargs)
-    partial = final.with_name(f".{final.name}.partial")
-    storage, successes = _open_partial(partial, spec, env)
-    start = storage.total_episodes
-    steps, pending, begin = 0, [], time.perf_counter()
-    with tqdm(total=spec.n_episodes, initial=start, desc=dataset_id, unit="ep", disable=not progress_bar) as bar:
-        for episode in _episodes(spec, start, workers):
-            pending.append(episode)
-            successes.append(bool(episode.rewards[-1] > 0))
-            steps += len(episode.rewards)
-            bar.update()
-            rate = steps / (time.perf_counter() - begin)
-            bar.set_postfix(transitions_per_s=f"{rate:.0f}", success_rate=f"{np.mean(successes):.3f}")
-            if len(pending) == WRITE_EVERY:
-                storage.update_episodes(pending)
-                pending = []
-        storage.update_episodes(pending)
+    env, storage, pending, published = None, None, [], False
+    try:
+        env = gym.make(spec.env_id, **spec.env_kwargs)
+        if spec.controller is None and spec.policy != "random":
+            make_policy(spec, env)  # a model that cannot be loaded fails here, not in every worker
+        partial = ids.partial_path(dataset_id)
+        storage, successes = _open_partial(partial, spec, env)
+        start = storage.total_episodes
+        print(_plan(spec, dataset_id, workers, start), file=sys.stderr, flush=True)
+        steps, begin = 0, time.perf_counter()
+        with (
+            contextlib.closing(_episodes(spec, start, workers)) as episodes,
+            tqdm(total=spec.n_episodes, initial=start, desc=dataset_id, unit="ep", disable=not progress_bar) as bar,
+        ):
+            for episode in episodes:
+                pending.append(episode)
+                successes.append(bool(episode.rewards[-1] > 0))
+                steps += len(episode.rewards)
+                bar.update()
+                rate = steps / (time.perf_counter() - begin)
+                bar.set_postfix(transitions_per_s=f"{rate:.0f}", success_rate=f"{np.mean(successes):.3f}")
+                if len(pending) >= write_every:
+                    _write(storage, pending)
+            _write(storage, pending)
+        with _sigint_deferred():
+            storage.update_metadata(_metadata(dataset_id, spec, successes, env))
+            (partial / SPEC_FILE).unlink()
+            dataset = _publish(partial, final)
+            published = True
+        return dataset
+    except KeyboardInterrupt:
+        with _sigint_deferred(reraise=False):  # more Ctrl-C while the finished episodes are written change nothing
+            if storage is not None and not published:
+                _write(storage, pending)
+            print(_interrupted(dataset_id, spec, storage, published), file=sys.stderr, flush=True)
+        raise
+    finally:
+        if env is not None:
+            env.close()
 
-    storage.update_metadata(_metadata(dataset_id, spec, successes, env))
-    env.close()
-    (partial / SPEC_FILE).unlink()
-    return _publish(partial, final)
+
+def _write(storage: MinariStorage, pending: list[EpisodeBuffer]) -> None:
+    """Append the ``pending`` episodes to ``storage`` and empty the list, whole even if Ctrl-C comes meanwhile."""
+    with _sigint_deferred():
+        if pending:
+            storage.update_episodes(pending)
+            pending.clear()
+
+
+def _interrupted(dataset_id: str, spec: CollectionSpec, storage: MinariStorage | None, published: bool) -> str:
+    """The line an interrupted collection prints."""
+    if published:
+        return f"interrupted: {dataset_id} was already complete ({spec.n_episodes} episodes)"
+    if storage is None:
+        return f"interrupted before collecting {dataset_id}: the same command starts (or resumes) it"
+    return (
+        f"interrupted: {storage.total_episodes} of {spec.n_episodes} episodes of {dataset_id} kept; the same command resumes"
+    )
 
 
 def ensure_dataset(
@@ -263,7 +466,7 @@ def ensure_dataset(
     """The dataset ``dataset_id``, collected first if it is missing and its id is one of this package's standard
     ones (``sb3cql/<task>/<pid|noisy|random>[-delta]-v0``, collected with :class:`CollectionSpec`'s defaults:
     10,000 episodes from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted
-    collection resumes.
+    collection resumes; what a collection prints and does on Ctrl-C is :func:`collect_dataset`'s.
 
     :param dataset_id: the Minari id.
     :param n_episodes: episodes of a collection; ``None`` for :class:`CollectionSpec`'s default.
@@ -276,7 +479,6 @@ def ensure_dataset(
     env_id, policy, action_mode, _ = parsed
     env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
     spec = CollectionSpec(env_id, policy, env_kwargs=env_kwargs, **({} if n_episodes is None else {"n_episodes": n_episodes}))
-    print(f"Dataset {dataset_id} not found: collecting it ({spec.n_episodes} episodes), once.")
     return collect_dataset(spec, dataset_id, workers=workers or os.cpu_count() or 1, progress_bar=progress_bar)
 
 
@@ -288,7 +490,7 @@ def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False
     final = _prepare(dataset_id, overwrite)
     sources = [load_dataset(source) for source in source_ids]
     env_spec = validate_datasets_to_combine(sources)
-    partial = final.with_name(f".{final.name}.partial")
+    partial = ids.partial_path(dataset_id)
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
     storage = MinariStorage.new(partial / "data", env_spec=env_spec, data_format="hdf5")

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
+from typing import Any
 
 from minari.storage import get_dataset_path
 
@@ -17,6 +19,8 @@ POLICIES = ("pid", "noisy", "pid-regrasp", "noisy-regrasp", "random")
 NOISY_POLICIES = {"noisy": "pid", "noisy-regrasp": "pid-regrasp"}
 #: Standard deviation (rad) of the Gaussian noise the ``noisy`` policy adds to the PD controller's arm targets.
 DEFAULT_NOISE = 0.03
+#: Name of the file describing a collection in progress, in its ``.partial`` folder (to resume only the same one).
+SPEC_FILE = "collection.json"
 
 
 def dataset_id(env_id: str, policy: str = "pid", action_mode: str = "absolute", version: int = 0) -> str:
@@ -34,6 +38,35 @@ def dataset_id(env_id: str, policy: str = "pid", action_mode: str = "absolute", 
 def dataset_path(dataset_id: str) -> Path:
     """Where Minari keeps ``dataset_id`` (under ``MINARI_DATASETS_PATH``, or ``~/.minari/datasets``)."""
     return get_dataset_path(dataset_id)
+
+
+def partial_path(dataset_id: str) -> Path:
+    """Where a collection of ``dataset_id`` writes until it is complete: a hidden ``.<name>.partial`` folder beside
+    the dataset's, holding the episodes written so far and the collection's spec."""
+    final = dataset_path(dataset_id)
+    return final.with_name(f".{final.name}.partial")
+
+
+def collect_command(spec: dict[str, Any], dataset_id: str) -> str | None:
+    """The ``python -m sb3_cql.data collect`` command line of a collection, from its spec's fields
+    (:class:`~sb3_cql.data.CollectionSpec`), or ``None`` if the command line cannot express it (physics keywords).
+
+    :param spec: the spec's fields, as :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them.
+    :param dataset_id: the dataset's id.
+    """
+    env_kwargs = dict(spec.get("env_kwargs") or {})
+    action_mode = env_kwargs.pop("action_mode", "absolute")
+    if env_kwargs:
+        return None
+    words = ["python", "-m", "sb3_cql.data", "collect", "--env", spec["env_id"], "--policy", spec["policy"]]
+    if spec.get("algo") is not None:
+        words += ["--algo", spec["algo"]]
+    words += ["--episodes", str(spec["n_episodes"]), "--seed", str(spec["seed"])]
+    if spec.get("noise") != (DEFAULT_NOISE if spec["policy"] in NOISY_POLICIES else 0.0):
+        words += ["--noise", str(spec["noise"])]
+    if action_mode != "absolute":
+        words += ["--action-mode", action_mode]
+    return shlex.join([*words, "--dataset-id", dataset_id])
 
 
 def dataset_exists(dataset_id: str) -> bool:

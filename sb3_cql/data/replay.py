@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
@@ -28,6 +29,9 @@ def load_dataset(dataset_id: str) -> MinariDataset:
     or unreadable."""
     path = ids.dataset_path(dataset_id)
     if not ids.dataset_exists(dataset_id):
+        partial = _partial_collection(dataset_id)
+        if partial is not None:
+            raise DatasetError(partial)
         raise DatasetError(
             f"dataset {dataset_id} not found at {path} (MINARI_DATASETS_PATH or ~/.minari/datasets); "
             f"collect it with: python -m sb3_cql.data collect --dataset-id {dataset_id} ..."
@@ -38,6 +42,22 @@ def load_dataset(dataset_id: str) -> MinariDataset:
     except Exception as error:
         raise DatasetError(f"dataset {dataset_id} at {path} is truncated or corrupt: {error}") from error
     return dataset
+
+
+def _partial_collection(dataset_id: str) -> str | None:
+    """What to say of an interrupted collection of ``dataset_id``, or ``None`` if there is none."""
+    partial = ids.partial_path(dataset_id)
+    try:
+        spec = json.loads((partial / ids.SPEC_FILE).read_text())
+        collected = json.loads((partial / "data" / "metadata.json").read_text())["total_episodes"]
+        command = ids.collect_command(spec, dataset_id)
+    except (OSError, ValueError, KeyError, TypeError):  # not a collection's partial folder
+        return None
+    resume = f"resume it with: {command}" if command else "the same collection (collect_dataset) resumes it"
+    return (
+        f"dataset {dataset_id} is partial: its collection was interrupted after {collected} of {spec['n_episodes']} "
+        f"episodes (kept in {partial}); {resume}"
+    )
 
 
 def _name(dataset: MinariDataset) -> str:
