@@ -430,11 +430,12 @@ def collect_dataset(
             dataset = _publish(partial, final)
             published = True
         return dataset
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         with _sigint_deferred(reraise=False):  # more Ctrl-C while the finished episodes are written change nothing
             if storage is not None and not published:
                 _write(storage, pending)
             print(_interrupted(dataset_id, spec, storage, published), file=sys.stderr, flush=True)
+        interrupt.said = True  # type: ignore[attr-defined]  # what was kept is said: callers need not say more
         raise
     finally:
         if env is not None:

@@ -139,8 +139,8 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             if folder.is_dir() and not _holds_a_model(folder):
                 shutil.rmtree(folder, ignore_errors=True)
             if isinstance(error, KeyboardInterrupt):
-                # What the collection kept, if it was collecting, is on the line before.
-                print(f"interrupted before training started: no model, {folder} removed", file=sys.stderr)
+                if not getattr(error, "said", False):  # a dataset collection says what it kept itself
+                    print(f"interrupted before training started: no model yet, {folder} removed", file=sys.stderr)
                 raise SystemExit(130) from None
             raise
 
