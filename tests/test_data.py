@@ -1,5 +1,6 @@
 """Collection of Minari datasets and their loading into SB3's ReplayBuffer."""
 
+import dataclasses
 import json
 import os
 import re
@@ -225,6 +226,28 @@ def test_dataset_that_does_not_fit_the_env_is_rejected():
 def test_missing_dataset_is_named_in_the_error():
     with pytest.raises(DatasetError, match="sb3cql/Panda-v0/nothing-v0 not found"):
         load_dataset("sb3cql/Panda-v0/nothing-v0")
+
+
+def test_standard_ids_give_their_episodes_in_thousands():
+    from sb3_cql.data import standard_collection
+    from sb3_cql.data.ids import dataset_id, parse_dataset_id
+
+    assert parse_dataset_id("sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0") == ("Panda-v0", "noisy-regrasp", "delta", 0, 1000)
+    assert parse_dataset_id("sb3cql/Panda-v0/pid-v0") == ("Panda-v0", "pid", "absolute", 0, 10_000)
+    for not_standard in ("sb3cql/Panda-v0/pid-0k-v0", "sb3cql/Panda-v0/pid-1.5k-v0", "sb3cql/Panda-v0/pid-k-v0"):
+        assert parse_dataset_id(not_standard) is None
+    assert dataset_id("Panda-v0", "noisy-regrasp", "delta", episodes=1000) == "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0"
+    assert dataset_id("Panda-v0", "pid", episodes=10_000) == "sb3cql/Panda-v0/pid-v0"
+    with pytest.raises(ValueError, match="thousands"):
+        dataset_id("Panda-v0", "pid", episodes=1500)
+    # A -<N>k dataset is the first N thousand episodes of the standard one: the same spec but for their number.
+    small, full = (standard_collection(f"sb3cql/PandaForce-v0/noisy-regrasp-delta{size}-v0") for size in ("-2k", ""))
+    assert (small.n_episodes, full.n_episodes) == (2000, 10_000)
+    assert dataclasses.replace(small, n_episodes=10_000) == full
+    assert full.env_id == "PandaForce-v0" and full.action_mode == "delta" and full.seed == 0
+    assert standard_collection("sb3cql/Panda-v0/pid-v1") is None and standard_collection("sb3cql/Nope-v0/pid-v0") is None
+    # The command line's default id says how many episodes a collection holds.
+    assert collect_dataset(CollectionSpec(n_episodes=1), progress_bar=False).spec.dataset_id == "sb3cql/Panda-v0/pid-v0"
 
 
 def test_missing_standard_dataset_is_collected_once(capsys):

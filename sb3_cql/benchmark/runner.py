@@ -139,13 +139,11 @@ def _check_dataset(dataset_id: str | None) -> None:
     """A dataset a training needs must exist, or be a standard one that the training collects first: otherwise the
     error names it (missing, or partial: an interrupted collection) before any work starts."""
     from sb3_cql.data import DatasetError, load_dataset
-    from sb3_cql.data.ids import dataset_exists, parse_dataset_id
+    from sb3_cql.data.collection import standard_collection
+    from sb3_cql.data.ids import dataset_exists
 
-    if dataset_id is None or dataset_exists(dataset_id):
-        return
-    parsed = parse_dataset_id(dataset_id)
-    if parsed is not None and parsed[3] == 0 and parsed[0] in envs.ENV_IDS:
-        return  # collected on the first run (sb3_cql.data.ensure_dataset)
+    if dataset_id is None or dataset_exists(dataset_id) or standard_collection(dataset_id) is not None:
+        return  # there, or collected on the first run (sb3_cql.data.ensure_dataset)
     try:
         load_dataset(dataset_id)
     except DatasetError as error:

@@ -385,14 +385,17 @@ def collect_dataset(
     episodes finished so far, prints one line saying how many are kept, and raises the ``KeyboardInterrupt`` again.
 
     :param spec: what to collect.
-    :param dataset_id: the Minari id; by default ``sb3cql/<env>/<policy>[-delta]-v0``.
+    :param dataset_id: the Minari id; by default ``sb3cql/<env>/<policy>[-delta][-<N>k]-v0``, ``-<N>k`` for a
+        number of episodes that is a multiple of 1,000 other than 10,000.
     :param workers: worker processes; the data do not depend on it.
     :param overwrite: replace an existing dataset of that id (otherwise ``FileExistsError``).
     :param progress_bar: show episodes, transitions/s and the success rate so far.
     :param write_every: episodes written to disk at a time (``WRITE_EVERY`` by default): the most a crash loses.
     """
     policy_name = spec.policy if spec.policy in POLICIES else Path(spec.policy).stem
-    dataset_id = dataset_id or ids.dataset_id(spec.env_id, policy_name, spec.action_mode)
+    in_thousands = spec.n_episodes >= 1000 and spec.n_episodes % 1000 == 0
+    dataset_id = dataset_id or ids.dataset_id(spec.env_id, policy_name, spec.action_mode,
+                                              episodes=spec.n_episodes if in_thousands else None)  # fmt: skip
     write_every = WRITE_EVERY if write_every is None else write_every
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -465,8 +468,8 @@ def ensure_dataset(
     dataset_id: str, n_episodes: int | None = None, workers: int | None = None, progress_bar: bool = True
 ) -> MinariDataset:
     """The dataset ``dataset_id``, collected first if it is missing and its id is one of this package's standard
-    ones (``sb3cql/<task>/<pid|noisy|random>[-delta]-v0``, collected with :class:`CollectionSpec`'s defaults:
-    10,000 episodes from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted
+    ones (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0``, :func:`standard_collection`: 10,000 episodes, or N
+    thousand, from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted
     collection resumes; what a collection prints and does on Ctrl-C is :func:`collect_dataset`'s.
 
     :param dataset_id: the Minari id.
@@ -474,13 +477,25 @@ def ensure_dataset(
     :param workers: collection processes; by default one per CPU.
     :param progress_bar: show the collection's progress.
     """
-    parsed = ids.parse_dataset_id(dataset_id)
-    if ids.dataset_exists(dataset_id) or parsed is None or parsed[3] != 0 or parsed[0] not in envs.ENV_IDS:
+    spec = standard_collection(dataset_id)
+    if ids.dataset_exists(dataset_id) or spec is None:
         return load_dataset(dataset_id)  # an error naming the id if it is missing
-    env_id, policy, action_mode, _ = parsed
-    env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
-    spec = CollectionSpec(env_id, policy, env_kwargs=env_kwargs, **({} if n_episodes is None else {"n_episodes": n_episodes}))
+    if n_episodes is not None:
+        spec = dataclasses.replace(spec, n_episodes=n_episodes)
     return collect_dataset(spec, dataset_id, workers=workers or os.cpu_count() or 1, progress_bar=progress_bar)
+
+
+def standard_collection(dataset_id: str) -> CollectionSpec | None:
+    """The collection a standard id stands for (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0`` with a named policy
+    and a registered task: its episodes, 10,000 without ``-<N>k``, from seed 0, the policy's default noise), or
+    ``None`` for any other id. A ``-<N>k`` dataset holds the first episodes of the 10,000-episode one (episode ``i``
+    is reset with seed ``i``)."""
+    parsed = ids.parse_dataset_id(dataset_id)
+    if parsed is None or parsed[3] != 0 or parsed[0] not in envs.ENV_IDS:
+        return None
+    env_id, policy, action_mode, _, episodes = parsed
+    env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
+    return CollectionSpec(env_id, policy, n_episodes=episodes, env_kwargs=env_kwargs)
 
 
 def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False) -> MinariDataset:

@@ -23,15 +23,28 @@ DEFAULT_NOISE = 0.03
 SPEC_FILE = "collection.json"
 
 
-def dataset_id(env_id: str, policy: str = "pid", action_mode: str = "absolute", version: int = 0) -> str:
-    """The Minari id of a dataset: ``sb3cql/Panda-v0/pid-v0``, ``sb3cql/Panda-v0/noisy-delta-v0``, ...
+#: Episodes of a standard dataset whose id gives no count (``sb3cql/Panda-v0/pid-v0``): the thesis's dataset size.
+STANDARD_EPISODES = 10_000
+
+
+def dataset_id(
+    env_id: str, policy: str = "pid", action_mode: str = "absolute", version: int = 0, episodes: int | None = None
+) -> str:
+    """The Minari id of a dataset: ``sb3cql/Panda-v0/pid-v0``, ``sb3cql/Panda-v0/noisy-delta-v0``,
+    ``sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0`` (1,000 episodes), ...
 
     :param env_id: the gymnasium id of the task the data comes from.
     :param policy: the behaviour policy's name (``pid``, ``noisy``, ``random``, ``mixed`` or any name).
     :param action_mode: the env's action mode; datasets of the two modes hold different actions.
     :param version: the dataset version.
+    :param episodes: the number of episodes, a multiple of 1,000 written in the id (``-1k``); ``None`` or
+        :data:`STANDARD_EPISODES` for none.
     """
     suffix = "" if action_mode == "absolute" else f"-{action_mode}"
+    if episodes is not None and episodes != STANDARD_EPISODES:
+        if episodes < 1000 or episodes % 1000:
+            raise ValueError(f"a dataset id gives its episodes in thousands, got {episodes}")
+        suffix += f"-{episodes // 1000}k"
     return f"{NAMESPACE}/{env_id}/{policy}{suffix}-v{version}"
 
 
@@ -74,12 +87,14 @@ def dataset_exists(dataset_id: str) -> bool:
     return (dataset_path(dataset_id) / "data" / "metadata.json").exists()
 
 
-def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int] | None:
-    """``(env_id, policy, action_mode, version)`` of an id made by :func:`dataset_id` with a named policy, else
-    ``None``: ``sb3cql/Panda-v0/noisy-delta-v0`` -> ``("Panda-v0", "noisy", "delta", 0)``."""
+def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int, int] | None:
+    """``(env_id, policy, action_mode, version, episodes)`` of an id made by :func:`dataset_id` with a named policy,
+    else ``None``: ``sb3cql/Panda-v0/noisy-delta-v0`` -> ``("Panda-v0", "noisy", "delta", 0, 10000)``,
+    ``sb3cql/Panda-v0/pid-2k-v0`` -> ``("Panda-v0", "pid", "absolute", 0, 2000)``."""
     policies = "|".join(POLICIES)
-    match = re.fullmatch(rf"{NAMESPACE}/([^/]+)/({policies})(-delta)?-v(\d+)", dataset_id)
+    match = re.fullmatch(rf"{NAMESPACE}/([^/]+)/({policies})(-delta)?(?:-([1-9]\d*)k)?-v(\d+)", dataset_id)
     if match is None:
         return None
-    env_id, policy, delta, version = match.groups()
-    return env_id, policy, "delta" if delta else "absolute", int(version)
+    env_id, policy, delta, thousands, version = match.groups()
+    episodes = STANDARD_EPISODES if thousands is None else 1000 * int(thousands)
+    return env_id, policy, "delta" if delta else "absolute", int(version), episodes
