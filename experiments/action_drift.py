@@ -27,45 +27,20 @@ folder in the system's temporary directory (SB3's default: ``$SB3_LOGDIR`` or ``
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import sys
-from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import torch as th
+from _cli import cql_from_clone, cql_keywords, positive_int
 from stable_baselines3.common.logger import configure
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import BC, CQL
+from sb3_cql import CQL
 from sb3_cql.data import DatasetError
 
 DEFAULT_DATASET = "sb3cql/Panda-v0/noisy-delta-v0"
 DEFAULT_KWARGS = {"batch_size": 128, "bc_steps": 3000, "reward_scale": 4.0, "reward_bias": -2.0}
-#: The keywords --kwargs may give: CQL's, less those the script sets.
-CQL_KEYWORDS = set(inspect.signature(CQL).parameters) - {"policy", "env", "dataset", "seed", "_init_setup_model"}
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
-
-
-def cql_keywords(text: str) -> dict[str, Any]:
-    """--kwargs: a JSON object of CQL's keywords."""
-    try:
-        kwargs = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise argparse.ArgumentTypeError(f"not JSON ({error}): {text}") from error
-    if not isinstance(kwargs, dict):
-        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text}")
-    unknown = sorted(set(kwargs) - CQL_KEYWORDS)
-    if unknown:
-        raise argparse.ArgumentTypeError(f"not CQL keywords: {', '.join(unknown)}")
-    return kwargs
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -88,16 +63,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--threads", metavar="N", type=positive_int, default=1, help="torch threads (default 1)")
     return parser.parse_args(argv)
-
-
-def cql_from_clone(bc_model: str, dataset_id: str, kwargs: dict[str, Any]) -> CQL:
-    """A CQL model on ``dataset_id`` whose actor is the saved clone's."""
-    clone = BC.load(bc_model)
-    kwargs = {**DEFAULT_KWARGS, **kwargs}
-    kwargs["policy_kwargs"] = {"net_arch": clone.policy_kwargs["net_arch"], **kwargs.get("policy_kwargs", {})}
-    model = CQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=dataset_id, seed=1, **kwargs)
-    model.actor.load_state_dict(clone.actor.state_dict())
-    return model
 
 
 def rounded(values: th.Tensor) -> list[float]:
@@ -127,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     th.set_num_threads(args.threads)
     try:
-        model = cql_from_clone(args.bc_model, args.dataset_id, args.kwargs)
+        model = cql_from_clone(args.bc_model, args.dataset_id, {**DEFAULT_KWARGS, **args.kwargs})
     except DatasetError as error:
         sys.exit(f"error: {error}")
     model.set_logger(configure(args.log_dir, ["csv"]))

@@ -27,6 +27,7 @@ import sys
 
 import gymnasium as gym
 import torch as th
+from _cli import positive_int, train
 from stable_baselines3.common.logger import configure
 
 import envs  # noqa: F401  (registers the tasks)
@@ -36,13 +37,6 @@ from sb3_cql.evaluate import success_rate
 
 ENV_ID = "Panda-v0"
 ENV_KWARGS = {"action_mode": "delta"}
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -84,13 +78,6 @@ def continued_clone(args: argparse.Namespace) -> BC:
     model.set_logger(configure(args.log_dir, ["csv"]))
     print(f"Logging to {model.logger.get_dir()}", flush=True)
     return model
-
-
-def train(model: BC, steps: int) -> int:
-    """Make ``steps`` more gradient steps, then write one row of the CSV log; return ``steps``."""
-    model.learn(steps, reset_num_timesteps=False, log_interval=0)
-    model.logger.dump(step=model.num_timesteps)
-    return steps
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -34,21 +34,20 @@ threads (1 by default). The documentation's "What we learned" page gives the fin
 from __future__ import annotations
 
 import argparse
-import inspect
-import json
 import os
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
+import _cli
 import torch as th
+from _cli import positive_int, train
 from stable_baselines3.common.logger import configure
 from stable_baselines3.sac.policies import LOG_STD_MIN
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import BC, CQL
+from sb3_cql import CQL
 from sb3_cql.data import DatasetError
 from sb3_cql.evaluate import success_rate
 
@@ -82,28 +81,11 @@ class MeanBackupCQL(CQL):
 
 
 VARIANTS = {"clip_backup": ClippedBackupCQL, "mean_backup": MeanBackupCQL}
-#: The keywords KWARGS_JSON may give: CQL's, less those the script sets.
-CQL_KEYWORDS = set(inspect.signature(CQL).parameters) - {"policy", "env", "dataset", "seed", "_init_setup_model"}
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
 
 
 def cql_keywords(text: str) -> dict[str, Any]:
-    """KWARGS_JSON: a JSON object of CQL's keywords and the variant keys."""
-    try:
-        kwargs = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise argparse.ArgumentTypeError(f"not JSON ({error}): {text}") from error
-    if not isinstance(kwargs, dict):
-        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text}")
-    unknown = sorted(set(kwargs) - set(VARIANT_KEYS) - CQL_KEYWORDS)
-    if unknown:
-        raise argparse.ArgumentTypeError(f"not CQL keywords: {', '.join(unknown)}")
+    """KWARGS_JSON: a JSON object of CQL's keywords and the variant keys, at most one of those."""
+    kwargs = _cli.cql_keywords(text, extra_keys=VARIANT_KEYS)
     if sum(bool(kwargs.get(key)) for key in VARIANT_KEYS) > 1:
         raise argparse.ArgumentTypeError(f"at most one of {', '.join(VARIANT_KEYS)}")
     return kwargs
@@ -135,11 +117,7 @@ def cql_from_clone(bc_model: str, dataset_id: str, kwargs: dict[str, Any]) -> CQ
     """A CQL model (or a variant's, per ``kwargs``) on ``dataset_id`` whose actor is the saved clone's."""
     kwargs = dict(kwargs)
     variant = next((VARIANTS[key] for key in VARIANT_KEYS if kwargs.pop(key, False)), CQL)
-    clone = BC.load(bc_model)
-    kwargs["policy_kwargs"] = {"net_arch": clone.policy_kwargs["net_arch"], **kwargs.get("policy_kwargs", {})}
-    model = variant("MlpPolicy", gym.make(ENV_ID, **ENV_KWARGS), dataset=dataset_id, seed=1, **kwargs)
-    model.actor.load_state_dict(clone.actor.state_dict())
-    return model
+    return _cli.cql_from_clone(bc_model, dataset_id, kwargs, algorithm=variant, env_id=ENV_ID)
 
 
 def policy_std(model: CQL, n_states: int = 512) -> list[float]:
@@ -148,13 +126,6 @@ def policy_std(model: CQL, n_states: int = 512) -> list[float]:
     with th.no_grad():
         _, log_std, _ = model.actor.get_action_dist_params(data.observations)
     return log_std.exp().mean(0).double().cpu().numpy().round(2).tolist()
-
-
-def train(model: CQL, steps: int) -> int:
-    """Make ``steps`` more gradient steps, then write one row of the CSV log; return ``steps``."""
-    model.learn(steps, reset_num_timesteps=False, log_interval=0)
-    model.logger.dump(step=model.num_timesteps)
-    return steps
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -27,13 +27,12 @@ default).
 from __future__ import annotations
 
 import argparse
-import inspect
-import json
 import sys
 from typing import Any
 
 import gymnasium as gym
 import torch as th
+from _cli import cql_keywords, positive_int
 from stable_baselines3.common.logger import configure
 
 import envs  # noqa: F401  (registers the tasks)
@@ -41,33 +40,10 @@ from sb3_cql import CQL
 from sb3_cql.data import DatasetError
 
 DEFAULT_DATASET = "sb3cql/Panda-v0/x-noisy-delta-v0"
-#: The keywords KWARGS_JSON may give: CQL's, less those the script sets.
-CQL_KEYWORDS = set(inspect.signature(CQL).parameters) - {"policy", "env", "dataset", "seed", "_init_setup_model"}
 #: Factors applied to the data's gripper actions.
 GRIPPER_SCALES = (0.99, 0.97, 0.9, 0.5)
 #: Standard deviation of the noise added to the data's arm actions.
 ARM_NOISE = 0.05
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
-
-
-def cql_keywords(text: str) -> dict[str, Any]:
-    """KWARGS_JSON: a JSON object of CQL's keywords."""
-    try:
-        kwargs = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise argparse.ArgumentTypeError(f"not JSON ({error}): {text}") from error
-    if not isinstance(kwargs, dict):
-        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text}")
-    unknown = sorted(set(kwargs) - CQL_KEYWORDS)
-    if unknown:
-        raise argparse.ArgumentTypeError(f"not CQL keywords: {', '.join(unknown)}")
-    return kwargs
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

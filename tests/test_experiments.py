@@ -34,7 +34,10 @@ FLOATS = rf"\[{FLOAT}(?:, {FLOAT}){{{ACTION_DIM - 1}}}\]"  # one value per actio
 
 
 def load_script(name: str):
-    """The script ``experiments/<name>.py`` as a module (its ``main`` is not run)."""
+    """The script ``experiments/<name>.py`` as a module (its ``main`` is not run), importing ``_cli`` from its folder
+    as the script run by path does."""
+    if str(ROOT / "experiments") not in sys.path:
+        sys.path.insert(0, str(ROOT / "experiments"))
     spec = importlib.util.spec_from_file_location(f"experiments_{name}", ROOT / "experiments" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
