@@ -22,6 +22,7 @@ import signal
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -234,9 +235,9 @@ def _episodes(spec: CollectionSpec, start: int, workers: int) -> Iterator[Episod
         # One episode a task (an episode takes 0.1 to 1 s, a task's messages ~1 ms): every episode finished in order
         # reaches this process, to be kept if the collection is interrupted.
         with _sigint_blocked():  # the workers start (at the first submissions) with Ctrl-C blocked, until they ignore it
-            futures = [executor.submit(_run_episode, index) for index in indices]
-        for future in futures:
-            yield future.result()
+            futures = deque(executor.submit(_run_episode, index) for index in indices)
+        while futures:  # each episode let go once handed over: the collection holds no more than the workers' lead
+            yield futures.popleft().result()
         finished = True
     except BrokenProcessPool as error:
         raise RuntimeError(
