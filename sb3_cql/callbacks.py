@@ -13,7 +13,7 @@ class PrefillReplayBuffer(BaseCallback):
 
         callback:
           - sb3_cql.callbacks.PrefillReplayBuffer:
-              dataset: sb3cql/Panda-v0/noisy-regrasp-delta-v0
+              dataset: sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0
 
     The buffer grows to the data's size if ``buffer_size`` cannot hold them; it is then full, and online
     transitions replace the oldest data first, as in any full SB3 buffer.

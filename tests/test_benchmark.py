@@ -20,7 +20,7 @@ TINY = ["--zoo-args", "--hyperparams batch_size:64 policy_kwargs:dict(net_arch=[
 
 
 class Bench:
-    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-regrasp-delta-v0``, our configs'."""
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0``, our configs'."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -40,7 +40,8 @@ class Bench:
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory) -> Bench:
     bench = Bench(tmp_path_factory.mktemp("bench"))
-    bench.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
+    bench.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4",
+             "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0", module="sb3_cql.data")
     return bench
 
 
@@ -116,7 +117,29 @@ def test_clear_errors(bench, quick):
     missing = one_line_error("--algos", "bc", "--results-dir", "errors", "--zoo-args",
                              "--hyperparams dataset:\"'sb3cql/Panda-v0/nothing-here-v0'\"")  # fmt: skip
     assert "dataset sb3cql/Panda-v0/nothing-here-v0 not found" in missing
+    missing = one_line_error("--algos", "cql", "--results-dir", "errors", "--dataset", "sb3cql/Panda-v0/nothing-here-v0")
+    assert "dataset sb3cql/Panda-v0/nothing-here-v0 not found" in missing
     assert not (bench.root / "errors" / "runs").exists()  # refused before any work
+
+
+def test_dataset_option_sets_the_offline_algorithms_dataset_only(tmp_path):
+    from sb3_cql.benchmark.records import ResultsFolder, write_json
+    from sb3_cql.benchmark.runner import BenchmarkError, Settings
+
+    thesis = "sb3cql/Panda-v0/noisy-regrasp-delta-v0"
+    settings = Settings(zoo_args=["--hyperparams", "batch_size:64", "--verbose", "0"], dataset=thesis)
+    assert settings.dataset_args(None) == settings.zoo_args  # an online algorithm's config has no dataset
+    args = settings.dataset_args("sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0")
+    assert args == ["--hyperparams", f"dataset:'{thesis}'", "batch_size:64", "--verbose", "0"]  # one --hyperparams
+    assert Settings(dataset=thesis).dataset_args("x") == ["--hyperparams", f"dataset:'{thesis}'"]
+    assert Settings(zoo_args=["-n", "5"]).dataset_args("x") == ["-n", "5"]
+    # A results folder recorded before the option existed keeps working with its default, and refuses another dataset.
+    results = ResultsFolder(tmp_path)
+    write_json(results.protocol, {"settings": {"n_timesteps": None, "eval_freq": None, "eval_episodes": None,
+                                               "episodes": 100, "zoo_args": []}, "train_env": "Panda-v0"})  # fmt: skip
+    Settings().check_folder(results)
+    with pytest.raises(BenchmarkError, match="other settings"):
+        Settings(dataset=thesis).check_folder(results)
 
 
 def test_a_failing_zoo_run_shows_its_log(bench):

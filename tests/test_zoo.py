@@ -20,7 +20,7 @@ TINY = ["--hyperparams", "batch_size:64", "policy_kwargs:dict(net_arch=[32, 32])
 
 
 class Zoo:
-    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-regrasp-delta-v0``, our configs'."""
+    """A working folder whose datasets folder holds a 4-episode ``sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0``, our configs'."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -39,7 +39,8 @@ class Zoo:
 @pytest.fixture(scope="module")
 def zoo(tmp_path_factory) -> Zoo:
     zoo = Zoo(tmp_path_factory.mktemp("zoo"))
-    zoo.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4", module="sb3_cql.data")
+    zoo.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4",
+             "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0", module="sb3_cql.data")
     return zoo
 
 
@@ -102,7 +103,7 @@ def test_zoo_training_logs_evaluations_tensorboard_and_checkpoints(trained):
     assert (trained / "best_model.zip").is_file() and (trained / "Panda-v0.zip").is_file()
     config = yaml.unsafe_load((trained / "Panda-v0" / "config.yml").read_text())
     # hyperparams/cql.yml, found without --conf-file
-    assert dict(config)["dataset"] == "sb3cql/Panda-v0/noisy-regrasp-delta-v0"
+    assert dict(config)["dataset"] == "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0"
 
     (events,) = (trained.parents[2] / "tb" / "Panda-v0").glob("CQL_1/events.out.tfevents.*")
     tags = EventAccumulator(str(events)).Reload().Tags()["scalars"]
@@ -138,7 +139,7 @@ def test_ctrl_c_during_training_keeps_the_model_and_says_so_in_one_line(zoo):
 
 
 def test_ctrl_c_while_the_dataset_is_collected_leaves_no_run_folder(zoo):
-    # An empty datasets folder: the run collects its config's standard dataset (10,000 episodes) first.
+    # An empty datasets folder: the run collects its config's standard dataset (1,000 episodes) first.
     env = {**zoo.env, "MINARI_DATASETS_PATH": str(zoo.root / "empty-datasets")}
     logs = zoo.root / "logs-interrupted"
     status, stdout, stderr = interrupt(
@@ -146,7 +147,7 @@ def test_ctrl_c_while_the_dataset_is_collected_leaves_no_run_folder(zoo):
         ready=lambda: any((zoo.root / "empty-datasets").rglob("*.hdf5")), env=env)  # fmt: skip
     assert status == 130 and "Traceback" not in stderr
     last_line = stderr.strip().splitlines()[-1]
-    assert last_line.startswith("interrupted: ") and "episodes of sb3cql/Panda-v0/noisy-regrasp-delta-v0 kept" in last_line
+    assert last_line.startswith("interrupted: ") and "episodes of sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0 kept" in last_line
     assert not list(logs.glob("cql/Panda-v0_*"))  # the next run is Panda-v0_1 again
 
 
@@ -198,7 +199,7 @@ def test_console_script_with_an_explicit_config_file(zoo):
     rl_zoo3 = shutil.which("rl_zoo3")
     assert rl_zoo3 is not None
     (zoo.root / "mine.yml").write_text(
-        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 20\n  dataset: sb3cql/Panda-v0/noisy-regrasp-delta-v0\n"
+        "Panda-v0:\n  policy: MlpPolicy\n  n_timesteps: 20\n  dataset: sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0\n"
         "  batch_size: 16\n"
         "  env_kwargs: {action_mode: delta}\n  policy_kwargs: 'dict(net_arch=[8])'\n"
     )
@@ -211,11 +212,11 @@ def test_console_script_with_an_explicit_config_file(zoo):
 def test_sac_baseline_starts_from_the_dataset(zoo):
     output = zoo.run("--algo", "sac", "--env", "Panda-v0", "-n", "30", "--eval-freq", "-1", "-f", "sac", *TINY,
                      "learning_starts:10", "callback:[{'sb3_cql.callbacks.PrefillReplayBuffer': "
-                     "{'dataset': 'sb3cql/Panda-v0/noisy-regrasp-delta-v0', 'verbose': 1}}]")  # fmt: skip
+                     "{'dataset': 'sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0', 'verbose': 1}}]")  # fmt: skip
     size = zoo.python(
-        "from sb3_cql.data import load_dataset; print(load_dataset('sb3cql/Panda-v0/noisy-regrasp-delta-v0').total_steps)"
+        "from sb3_cql.data import load_dataset; print(load_dataset('sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0').total_steps)"
     )
-    assert f"Replay buffer: {size} transitions from sb3cql/Panda-v0/noisy-regrasp-delta-v0" in output
+    assert f"Replay buffer: {size} transitions from sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0" in output
 
 
 def test_tuning_with_sqlite_storage(zoo):
@@ -227,7 +228,7 @@ def test_tuning_with_sqlite_storage(zoo):
     assert len(trials) == 2
     for trial in trials:
         sampled = {"cql_alpha", "learning_rate", "actor_learning_rate", "batch_size", "cql_n_actions", "net_arch",
-                   "bc_steps", "actor_bc_weight", "reward"}  # fmt: skip
+                   "bc_steps", "actor_bc_weight", "reward", "cql_calibrated"}  # fmt: skip
         sampled |= {"bc_learning_rate"} if trial.params["bc_steps"] > 0 else set()
         assert set(trial.params) == sampled
 
@@ -238,9 +239,9 @@ def test_the_search_space_samples_a_warm_start_learning_rate_only_for_a_warm_sta
 
     raw = {"cql_alpha": 5.0, "learning_rate": 3e-4, "actor_learning_rate": 3e-5, "batch_size": 352,
            "cql_n_actions": 10, "net_arch": "large", "bc_steps": bc_steps, "bc_learning_rate": 1e-3,
-           "actor_bc_weight": 0.4, "reward": "shifted"}  # fmt: skip
+           "actor_bc_weight": 0.4, "reward": "shifted", "cql_calibrated": True}  # fmt: skip
     params = sample_cql_params(optuna.trial.FixedTrial(raw), n_actions=9, n_envs=1, additional_args={})
-    assert params["bc_steps"] == bc_steps and params["actor_bc_weight"] == 0.4
+    assert params["bc_steps"] == bc_steps and params["actor_bc_weight"] == 0.4 and params["cql_calibrated"] is True
     assert (params["reward_scale"], params["reward_bias"]) == (4.0, -2.0) and "reward" not in params
     assert params["policy_kwargs"] == {"net_arch": [256, 256, 256]}
     assert ("bc_learning_rate" in params) == (bc_steps > 0)

@@ -6,6 +6,7 @@ the table and figures.
     python -m sb3_cql.benchmark --quick                           # 1 seed, 2,000 steps, 20 episodes: minutes
     python -m sb3_cql.benchmark --algos cql pid --seeds 117 573 --workers 2
     python -m sb3_cql.benchmark --report-only                     # table and figures again from results/
+    python -m sb3_cql.benchmark --dataset sb3cql/Panda-v0/noisy-regrasp-delta-v0   # the thesis's 10,000 episodes
 
 Every finished training and evaluation is recorded in the results folder, and the same command skips them; a
 killed training continues from its latest checkpoint (``--save-freq``).
@@ -48,6 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--eval-episodes", type=int, default=None, help="episodes of those evaluations (default: configs)")
     parser.add_argument("--episodes", type=int, default=None, help="episodes of each final evaluation (default 100)")
     parser.add_argument("--save-freq", type=int, default=None, help="steps between checkpoints (default 10,000)")
+    parser.add_argument("--dataset", default=None, help="dataset of the offline algorithms (default: configs')")
     parser.add_argument("--zoo-args", default="", help='more rl_zoo3.train arguments, e.g. "--hyperparams batch_size:64"')
     parser.add_argument("--report-only", action="store_true", help="only make the table and figures from results/")
     parser.add_argument("--no-filmstrips", action="store_true", help="skip the filmstrip figures (they play episodes)")
@@ -65,6 +67,7 @@ def main(argv: list[str] | None = None) -> None:
                 eval_episodes=args.eval_episodes if args.eval_episodes is not None else quick.get("eval_episodes"),
                 episodes=args.episodes if args.episodes is not None else quick.get("episodes", 100),
                 zoo_args=shlex.split(args.zoo_args),
+                dataset=args.dataset,
             )
             save_freq = args.save_freq if args.save_freq is not None else quick.get("save_freq", 10_000)
             protocol = Protocol(results, args.algos, seeds, args.tasks, settings, save_freq, args.workers)

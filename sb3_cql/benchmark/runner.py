@@ -60,6 +60,8 @@ class Settings:
     :param eval_episodes: episodes of those evaluations (``--eval-episodes``); ``None``: the config's.
     :param episodes: episodes of each final evaluation.
     :param zoo_args: extra arguments of every ``rl_zoo3.train`` call.
+    :param dataset: the dataset every offline algorithm (a config with a ``dataset``) trains on; ``None``: each
+        config's. The thesis's size: ``sb3cql/Panda-v0/noisy-regrasp-delta-v0`` (10,000 episodes).
     """
 
     n_timesteps: int | None = None
@@ -67,13 +69,25 @@ class Settings:
     eval_episodes: int | None = None
     episodes: int = 100
     zoo_args: list[str] = field(default_factory=list)
+    dataset: str | None = None
+
+    def dataset_args(self, config_dataset: str | None) -> list[str]:
+        """The zoo arguments with ``dataset`` in place of ``config_dataset`` (an online algorithm's ``None`` stays),
+        as an item of the zoo arguments' own ``--hyperparams`` if they have one (a second flag would replace it)."""
+        if self.dataset is None or config_dataset is None:
+            return list(self.zoo_args)
+        item = f"dataset:{self.dataset!r}"
+        if "--hyperparams" in self.zoo_args:
+            at = self.zoo_args.index("--hyperparams") + 1
+            return [*self.zoo_args[:at], item, *self.zoo_args[at:]]
+        return [*self.zoo_args, "--hyperparams", item]
 
     def check_folder(self, results: ResultsFolder) -> None:
         """Record these settings in a new results folder, or check they are those of an existing one."""
         recorded = read_json(results.protocol)
         if recorded is None:
             write_json(results.protocol, {"settings": asdict(self), "train_env": TRAIN_ENV})
-        elif recorded["settings"] != asdict(self):
+        elif {**asdict(Settings()), **recorded["settings"]} != asdict(self):  # settings added since: their defaults
             raise BenchmarkError(
                 f"{results.root} holds results made with other settings ({recorded['settings']}, not {asdict(self)}): "
                 "use another --results-dir, or the same options"
@@ -122,10 +136,10 @@ class Protocol:
                 _check_dataset(self._dataset_id(algo, config_file(algo, TRAIN_ENV)))
 
     def _dataset_id(self, algo: str, config: Path) -> str | None:
-        """The dataset ``algo`` trains on: its config's ``dataset`` for :data:`TRAIN_ENV`, or the one a
+        """The dataset ``algo`` trains on: its config's ``dataset`` for :data:`TRAIN_ENV`, or the one ``--dataset`` or a
         ``--hyperparams dataset:...`` item of the zoo arguments gives (evaluated as the zoo evaluates it)."""
-        dataset = (yaml.safe_load(config.read_text()) or {}).get(TRAIN_ENV, {}).get("dataset")
-        for item in self.settings.zoo_args:
+        dataset = config_dataset(config)
+        for item in self.settings.dataset_args(dataset):
             key, _, value = item.partition(":")
             if key == "dataset" and value:
                 try:
@@ -133,6 +147,12 @@ class Protocol:
                 except Exception:
                     raise BenchmarkError(f"--zoo-args: {item!r} is not dataset:\"'ID'\" (a quoted string)") from None
         return dataset if isinstance(dataset, str) else None
+
+
+def config_dataset(config: Path) -> str | None:
+    """The ``dataset`` of a zoo config's :data:`TRAIN_ENV` entry (``None``: an online algorithm)."""
+    dataset = (yaml.safe_load(config.read_text()) or {}).get(TRAIN_ENV, {}).get("dataset")
+    return dataset if isinstance(dataset, str) else None
 
 
 def _check_dataset(dataset_id: str | None) -> None:
@@ -207,7 +227,7 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
         else:
             assert run.n_timesteps is not None
             command += ["-i", str(latest[1]), "-n", str(run.n_timesteps - latest[0])]
-        command += settings.zoo_args
+        command += settings.dataset_args(_config_dataset(algo, settings))
         start = time.time()
         times[segment] = [start, start]
         write_json(times_path, times)
@@ -242,6 +262,16 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
     }
     write_json(results.training_record(algo, seed), record)
     return record
+
+
+def _config_dataset(algo: str, settings: Settings) -> str | None:
+    """The dataset of ``algo``'s config in our hyperparams/ (``None`` with a ``--conf-file`` of the zoo arguments)."""
+    from sb3_cql.zoo.plugin import config_file
+
+    if any(arg.startswith(("--conf-file", "-conf")) for arg in settings.zoo_args):
+        return None
+    config = config_file(algo, TRAIN_ENV)
+    return None if config is None else config_dataset(config)
 
 
 def _wall_time(run: Run, times: dict[str, list[float]]) -> float:
