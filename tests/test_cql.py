@@ -13,6 +13,7 @@ from stable_baselines3.common.logger import Logger, configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_cql import CQL
+from sb3_cql.common import ReturnToGoReplayBuffer
 from sb3_cql.common.allocator import retain_freed_memory
 from sb3_cql.cql import NormalizedFlatten
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
@@ -57,7 +58,8 @@ def test_cql_is_an_sb3_off_policy_algorithm_trained_offline(tmp_path):
 
 
 @pytest.mark.parametrize("options", [{}, {"cql_target_action_gap": 5.0}, {"cql_max_backup": True, "bc_steps": 20},
-                                     {"cql_deterministic_backup": False, "ent_coef": 0.1}])  # fmt: skip
+                                     {"cql_deterministic_backup": False, "ent_coef": 0.1},
+                                     {"cql_calibrated": True, "reward_scale": 2.0}])  # fmt: skip
 def test_save_and_load_round_trip(tmp_path, options):
     env = gym.make("Pendulum-v1")
     model = CQL("MlpPolicy", env, dataset=random_pendulum_buffer(), batch_size=32, policy_kwargs=TINY, seed=1, **options)
@@ -74,6 +76,12 @@ def test_save_and_load_round_trip(tmp_path, options):
         assert model.log_alpha_prime.item() != 0.0
         th.testing.assert_close(loaded.log_alpha_prime, model.log_alpha_prime)
         assert loaded.alpha_prime_optimizer.state_dict()["state"]
+    if options.get("cql_calibrated"):
+        assert loaded.cql_calibrated and isinstance(loaded.replay_buffer, ReturnToGoReplayBuffer)
+        model.save_replay_buffer(tmp_path / "buffer")
+        loaded.load_replay_buffer(tmp_path / "buffer")
+        np.testing.assert_array_equal(loaded.replay_buffer.returns_to_go, model.replay_buffer.returns_to_go)
+        assert loaded.replay_buffer.reward_scale == 2.0
     loaded.replay_buffer = model.replay_buffer
     loaded.learn(10, reset_num_timesteps=False)
     assert loaded.num_timesteps == 60
@@ -160,6 +168,89 @@ def test_cql_is_conservative_where_sac_overestimates():
     assert (
         mean_q(sac, unseen_actions) - mean_q(sac, data_actions) > mean_q(cql, unseen_actions) - mean_q(cql, data_actions) + 1.0
     )
+
+
+def failing_chain_buffer(gamma: float) -> tuple[ReplayBuffer, float]:
+    """100 episodes of 20 steps with reward -1, cut by the time limit, actions near 0.5 * s[0]: every state's
+    return-to-go is -1 / (1 - gamma)."""
+    rng = np.random.default_rng(0)
+    observation_space, action_space = spaces.Box(-1.0, 1.0, (2,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32)
+    buffer = ReplayBuffer(2000, observation_space, action_space)
+    for _ in range(100):
+        observation = rng.uniform(-1.0, 1.0, 2).astype(np.float32)
+        for step in range(20):
+            action = np.clip(0.5 * observation[:1] + 0.05 * rng.standard_normal(1), -1.0, 1.0)
+            next_observation = np.clip(observation + 0.1 * rng.standard_normal(2), -1.0, 1.0).astype(np.float32)
+            buffer.add(observation, next_observation, action, np.array([-1.0]), np.array([step == 19]),
+                       [{"TimeLimit.truncated": step == 19}])  # fmt: skip
+            observation = next_observation
+    return buffer, -1.0 / (1.0 - gamma)
+
+
+def q_at_policy_actions(model: CQL, observations: th.Tensor, n: int = 10) -> th.Tensor:
+    """The lower critic's value of ``n`` policy samples at each observation."""
+    with th.no_grad():
+        actions, _ = model._sample_actions(*model.actor.get_action_dist_params(observations)[:2], n)
+        return th.cat(model.critic(observations.repeat_interleave(n, dim=0), actions), dim=1).min(dim=1).values
+
+
+@pytest.mark.slow
+def test_calibrated_values_stay_at_the_data_return_where_cql_sinks_below():
+    """Plain CQL pushes Q at the policy's actions far below the return the data earned; Cal-QL keeps it at or above
+    (tolerance: 10% of the return)."""
+    buffer, data_return = failing_chain_buffer(gamma=0.9)
+    observations = th.as_tensor(buffer.observations[:500, 0])
+    means = {}
+    for calibrated in (False, True):
+        model = CQL("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64, learning_rate=1e-3,
+                    cql_alpha=5.0, cql_calibrated=calibrated, policy_kwargs=TINY, seed=0)  # fmt: skip
+        model.learn(3000)
+        means[calibrated] = q_at_policy_actions(model, observations).mean().item()
+    assert means[False] < data_return - 5.0  # measured: -22.2 (return -10)
+    assert means[True] >= data_return + 0.1 * data_return  # measured: -8.5
+
+
+def spaces_env(buffer: ReplayBuffer) -> gym.Env:
+    """An env with the buffer's spaces (SB3 needs one; offline training never steps it)."""
+
+    class SpacesEnv(gym.Env):
+        observation_space, action_space = buffer.observation_space, buffer.action_space
+
+        def reset(self, *, seed=None, options=None):
+            return self.observation_space.sample(), {}
+
+        def step(self, action):
+            return self.observation_space.sample(), 0.0, False, True, {}
+
+    return SpacesEnv()
+
+
+def test_calibration_lifts_the_policy_groups_to_the_bound_and_logs_how_often(tmp_path):
+    """The conservative term sees max(Q, G) at the policy's actions: with a return-to-go far above every value the
+    log-sum-exp is the bound's; with none (-inf, an episode under way) it is plain CQL's."""
+    buffer, _ = failing_chain_buffer(gamma=0.9)
+    model = CQL("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64, cql_calibrated=True,
+                policy_kwargs=TINY, seed=0)  # fmt: skip
+    assert isinstance(model.replay_buffer, ReturnToGoReplayBuffer)
+    np.testing.assert_allclose(model.replay_buffer.returns_to_go[: buffer.size()], -10.0, rtol=1e-6)
+    data = model.replay_buffer.sample(64)
+    policy = model.actor.get_action_dist_params(data.observations)[:2]
+    policy = (policy[0].detach(), policy[1].detach())
+    gaps = {}
+    for name, bound in (("high", 1000.0), ("none", -np.inf)):
+        th.manual_seed(0)
+        _, gap, logged = model._q_values_and_conservative_terms(data._replace(returns_to_go=th.full((64, 1), bound)),
+                                                                policy, policy)  # fmt: skip
+        gaps[name] = (gap[0].item(), logged["train/cql_bound_rate"])
+    model.cql_calibrated = False
+    th.manual_seed(0)
+    plain = model._q_values_and_conservative_terms(data, policy, policy)[1][0].item()
+    assert gaps["high"][0] > 1000.0 and gaps["high"][1] == 1.0  # every policy-action value lifted
+    assert gaps["none"] == (pytest.approx(plain, rel=1e-6), 0.0)
+    model.cql_calibrated = True
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(20, log_interval=10)
+    assert "train/cql_bound_rate" in pd.read_csv(tmp_path / "progress.csv").columns
 
 
 def test_warm_start_imitates_saturated_data_actions():

@@ -1,5 +1,6 @@
 """What the offline algorithms share: SAC's networks trained from a dataset instead of an env."""
 
+from sb3_cql.common.buffers import ReturnToGoReplayBuffer, ReturnToGoSamples, returns_to_go
 from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
 
-__all__ = ["OfflineSAC", "behaviour_cloning_loss"]
+__all__ = ["OfflineSAC", "ReturnToGoReplayBuffer", "ReturnToGoSamples", "behaviour_cloning_loss", "returns_to_go"]

@@ -15,7 +15,7 @@ from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from torch.nn import functional as F
 
-from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
+from sb3_cql.common import OfflineSAC, ReturnToGoReplayBuffer, behaviour_cloning_loss
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 
 #: Bound of the learned Lagrange multiplier, as in the reference implementation.
@@ -68,6 +68,13 @@ class CQL(OfflineSAC):
     :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
+    :param cql_calibrated: calibrated CQL, Cal-QL (Nakamoto et al. 2023, https://arxiv.org/abs/2303.05479): in the
+        conservative term, Q at the policy's actions (at ``s`` and ``s'``) is replaced by ``max(Q, G(s))``, with
+        ``G(s)`` the discounted return-to-go of the data's episode from ``s`` under the critics' rewards
+        (``reward_scale``, ``reward_bias``), so the term stops pushing the policy's values below what the data earned.
+        The replay buffer becomes a :class:`~sb3_cql.common.ReturnToGoReplayBuffer` (returns-to-go computed when the
+        data are loaded, and for online episodes when they end). ``train/cql_bound_rate`` logs the fraction of
+        policy-action values the bound lifted.
     :param bc_steps: gradient steps at the start of training (counted across ``learn`` calls and ``save``/``load``)
         whose actor loss is behaviour cloning in place of the Q-value (the deterministic action fitted to the data
         actions by least squares), next to the entropy term, which sets the spread alone (through the log-std head);
@@ -115,6 +122,7 @@ class CQL(OfflineSAC):
         cql_target_action_gap: float | None = None,
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
+        cql_calibrated: bool = False,
         bc_steps: int = 0,
         bc_learning_rate: float | None = None,
         actor_bc_weight: float = 0.0,
@@ -136,6 +144,7 @@ class CQL(OfflineSAC):
         self.cql_target_action_gap = cql_target_action_gap
         self.cql_deterministic_backup = cql_deterministic_backup
         self.cql_max_backup = cql_max_backup
+        self.cql_calibrated = cql_calibrated
         self.bc_steps = bc_steps
         self.bc_learning_rate = bc_learning_rate
         self.actor_bc_weight = actor_bc_weight
@@ -167,9 +176,23 @@ class CQL(OfflineSAC):
 
     def _setup_model(self) -> None:
         super()._setup_model()
+        if self.cql_calibrated and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
+            self._calibrate_buffer()
         if self.cql_target_action_gap is not None:
             self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
+
+    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        super()._fill_from_dataset(dataset)
+        if self.cql_calibrated:
+            self._calibrate_buffer()
+
+    def _calibrate_buffer(self) -> None:
+        """The replay buffer as a :class:`ReturnToGoReplayBuffer` (its arrays shared) under this model's rewards."""
+        assert self.replay_buffer is not None
+        self.replay_buffer = ReturnToGoReplayBuffer.from_replay_buffer(
+            self.replay_buffer, self.gamma, self.reward_scale, self.reward_bias
+        )
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's update with the conservative term added to the critic loss (and, with ``cql_target_action_gap``,
@@ -335,6 +358,11 @@ class CQL(OfflineSAC):
         for index, q_values in enumerate(self._critic_q_values(observations, actions), start=1):
             q_data = q_values[:batch_size]
             sampled = q_values[batch_size:].reshape(3, batch_size, n)
+            raw_sampled = sampled
+            if self.cql_calibrated:
+                # Cal-QL: the policy's values are pushed down no further than the data's return-to-go.
+                bound = data.returns_to_go
+                sampled = th.cat([sampled[:1], th.maximum(sampled[1:], bound)])
             importance_weighted = th.cat(list(sampled), dim=1) - log_densities
             logsumexp = th.logsumexp(importance_weighted / self.cql_temperature, dim=1) * self.cql_temperature
             current_q_values.append(q_data)
@@ -342,11 +370,13 @@ class CQL(OfflineSAC):
             if index == 1:
                 diagnostics = {
                     "train/cql_q_data": q_data.mean().item(),
-                    "train/cql_q_random": sampled[0].mean().item(),
-                    "train/cql_q_policy": sampled[1].mean().item(),
-                    "train/cql_q_next_policy": sampled[2].mean().item(),
+                    "train/cql_q_random": raw_sampled[0].mean().item(),
+                    "train/cql_q_policy": raw_sampled[1].mean().item(),
+                    "train/cql_q_next_policy": raw_sampled[2].mean().item(),
                     "train/cql_gap": gaps[0].item(),
                 }
+                if self.cql_calibrated:
+                    diagnostics["train/cql_bound_rate"] = (raw_sampled[1:] < bound).float().mean().item()
         return current_q_values, gaps, diagnostics
 
     def _critic_q_values(self, observations: th.Tensor, actions: th.Tensor) -> list[th.Tensor]:

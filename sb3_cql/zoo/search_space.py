@@ -23,7 +23,7 @@ REWARDS = {"data": (1.0, 0.0), "shifted": (4.0, -2.0)}
 def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """Sample the conservative weight, both learning rates, batch size, sampled actions, network size, the
     behaviour-cloning warm start (its length, and its starting learning rate when it has one), the actor's imitation
-    anchor after it and the critics' rewards."""
+    anchor after it, the critics' rewards and the calibration (Cal-QL)."""
     params = {
         "cql_alpha": trial.suggest_float("cql_alpha", 0.1, 20.0, log=True),
         "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
@@ -34,6 +34,7 @@ def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "bc_steps": trial.suggest_categorical("bc_steps", BC_STEPS),
         "actor_bc_weight": trial.suggest_categorical("actor_bc_weight", ACTOR_BC_WEIGHTS),
         "reward": trial.suggest_categorical("reward", list(REWARDS)),
+        "cql_calibrated": trial.suggest_categorical("cql_calibrated", [False, True]),
     }
     if params["bc_steps"] > 0:  # (without a warm start the rate is unused)
         params["bc_learning_rate"] = trial.suggest_float("bc_learning_rate", 1e-4, 3e-3, log=True)
