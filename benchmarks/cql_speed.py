@@ -1,12 +1,13 @@
 """Gradient steps/s of our CQL at the thesis's configuration, next to d3rlpy's CQL, SB3's SAC and the GEMM roofline.
 
     python benchmarks/cql_speed.py [--d3rlpy-python /path/to/venv/bin/python] [--steps 30] [--rounds 3]
+                                   [--batch-size 352] [--n-actions 10]
 
-Configuration: batch 352, 3 x 256 networks, 10 sampled actions, Panda-sized data (29-D observations, 9-D
-actions), torch on ``--threads`` threads (2 by default). Each round measures, one after the other: our CQL, d3rlpy's
-CQL (in the interpreter given by ``--d3rlpy-python``, since d3rlpy pins gymnasium 1.0.0: make it with
-``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy``), SB3's SAC. Medians are reported, and for the
-ratios the median of the rounds' ratios (each measured back to back).
+Configuration: batch 352 (``--batch-size``), 3 x 256 networks, 10 sampled actions (``--n-actions``), Panda-sized
+data (29-D observations, 9-D actions), torch on ``--threads`` threads (2 by default). Each round measures, one after
+the other: our CQL, d3rlpy's CQL (in the interpreter given by ``--d3rlpy-python``, since d3rlpy pins gymnasium
+1.0.0: make it with ``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy``), SB3's SAC. Medians
+are reported, and for the ratios the median of the rounds' ratios (each measured back to back).
 
 The roofline: a CQL step pushes ``batch * (1 + 3 * n_actions)`` rows forward and backward through each of the two
 critics (~18.5 GFLOP at this configuration); divided into the GFLOP/s of an fp32 GEMM of the same shape it
@@ -146,12 +147,16 @@ def cql_step_gflop() -> float:
 
 
 def main() -> None:
+    global BATCH, N_ACTIONS
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--d3rlpy-python", default=None, help="interpreter with d3rlpy installed")
     parser.add_argument("--steps", type=int, default=30)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--batch-size", type=int, default=BATCH, help=f"default {BATCH}, the thesis's")
+    parser.add_argument("--n-actions", type=int, default=N_ACTIONS, help=f"sampled actions (default {N_ACTIONS})")
     args = parser.parse_args()
+    BATCH, N_ACTIONS = args.batch_size, args.n_actions
     env, buffer = setup(args.threads)
     results: dict[str, list[float]] = {"ours": [], "d3rlpy": [], "d3rlpy_retain": [], "sac": []}
     for _ in range(args.rounds):

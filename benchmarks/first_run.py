@@ -35,9 +35,10 @@ def _minutes(seconds: float) -> str:
 
 
 def _watch_collection(datasets: Path, done: threading.Event, finished: dict[str, float], start: float) -> None:
-    """Note when the first complete dataset appears under ``datasets`` (Minari writes ``metadata.json`` last)."""
+    """Note when the first complete dataset appears under ``datasets``: a collection writes into a hidden
+    ``.<name>.partial`` folder (whose ``metadata.json`` is there from its first episodes) and renames it when done."""
     while not done.is_set():
-        if any(datasets.glob("*/*/*/data/metadata.json")):
+        if any(not path.parts[-3].startswith(".") for path in datasets.glob("*/*/*/data/metadata.json")):
             finished["collection"] = time.perf_counter() - start
             return
         time.sleep(0.5)
