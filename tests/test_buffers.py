@@ -1,4 +1,7 @@
-"""Returns-to-go and the replay buffer that holds them (calibrated CQL's bound), on hand-made episodes."""
+"""Returns-to-go and the replay buffer that holds them (calibrated CQL's bound), and the buffer of online fine-tuning
+that keeps the offline data beside the online transitions, on hand-made episodes."""
+
+import pickle
 
 import numpy as np
 import pytest
@@ -6,7 +9,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_cql.common import ReturnToGoReplayBuffer, returns_to_go
+from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer, returns_to_go
 
 OBSERVATIONS = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
 ACTIONS = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
@@ -70,3 +73,46 @@ def test_samples_carry_the_returns_to_go_of_their_states():
     for observation, value in zip(samples.observations[:, 0].tolist(), samples.returns_to_go[:, 0].tolist()):
         assert value == pytest.approx(expected[round(observation, 1)])
     assert isinstance(samples.returns_to_go, th.Tensor) and samples.dones.shape == (32, 1)
+
+
+def mixed_buffer(online_fraction: float, capacity: int = 100) -> MixedReplayBuffer:
+    """Offline transitions marked -1 (an ended episode of 10), an empty online part of ``capacity``."""
+    offline = ReturnToGoReplayBuffer(10, OBSERVATIONS, ACTIONS, gamma=0.5)
+    for step in range(10):
+        add(offline, 1.0 if step == 9 else 0.0, done=step == 9, value=-1.0)
+    online = ReturnToGoReplayBuffer(capacity, OBSERVATIONS, ACTIONS, gamma=0.5)
+    return MixedReplayBuffer(offline, online, online_fraction)
+
+
+def test_batches_draw_the_set_fraction_from_the_online_transitions():
+    buffer = mixed_buffer(online_fraction=0.25)
+    assert buffer.sample(8).observations[:, 0].tolist() == [-1.0] * 8  # nothing online yet: all offline
+    add(buffer, 0.0, value=1.0)  # added transitions go online
+    assert (buffer.online.size(), buffer.offline.size(), buffer.size()) == (1, 10, 11)
+    samples = buffer.sample(8)
+    assert sorted(samples.observations[:, 0].tolist()) == [-1.0] * 6 + [1.0] * 2
+    assert np.all(samples.returns_to_go[-2:].numpy() == -np.inf)  # the online episode has not ended
+    add(buffer, 1.0, done=True, value=1.0)  # the online episode ends: returns-to-go 0.5, 1.0
+    assert set(buffer.sample(8).returns_to_go[-2:].flatten().tolist()) <= {0.5, 1.0}
+    assert sorted(mixed_buffer(online_fraction=1.0).sample(4).observations[:, 0].tolist()) == [-1.0] * 4
+    with pytest.raises(ValueError, match="online_fraction"):
+        mixed_buffer(online_fraction=1.5)
+
+
+def test_a_pickled_mixed_buffer_keeps_the_online_transitions_up_to_its_size():
+    buffer = mixed_buffer(online_fraction=0.5, capacity=100_000)
+    add(buffer, 0.0, value=1.0)
+    add(buffer, 0.0, value=2.0)
+    copy = pickle.loads(pickle.dumps(buffer))
+    assert len(pickle.dumps(buffer)) < 100_000  # the filled rows only, not the capacity, and no offline data
+    assert copy.offline is None and copy.online.size() == 2 and copy.online.buffer_size == 100_000
+    np.testing.assert_array_equal(copy.online.observations[:3, 0, 0], [1.0, 2.0, 0.0])
+    assert np.all(copy.online.returns_to_go == -np.inf)
+    with pytest.raises(ValueError, match="no offline data"):
+        copy.sample(4)
+    copy.set_offline(buffer.offline)
+    copy.start_new_episodes()  # the env was reset (training resumed): the unfinished episode stays unbounded
+    add(copy, 1.0, done=True, value=3.0)
+    np.testing.assert_allclose(copy.online.returns_to_go[:3, 0], [-np.inf, -np.inf, 1.0])
+    with pytest.raises(ValueError, match="one class"):
+        copy.set_offline(ReplayBuffer(10, OBSERVATIONS, ACTIONS))

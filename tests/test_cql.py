@@ -13,7 +13,7 @@ from stable_baselines3.common.logger import Logger, configure
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_cql import CQL
-from sb3_cql.common import ReturnToGoReplayBuffer
+from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
 from sb3_cql.common.allocator import retain_freed_memory
 from sb3_cql.cql import NormalizedFlatten
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
@@ -251,6 +251,54 @@ def test_calibration_lifts_the_policy_groups_to_the_bound_and_logs_how_often(tmp
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(20, log_interval=10)
     assert "train/cql_bound_rate" in pd.read_csv(tmp_path / "progress.csv").columns
+
+
+def test_online_fine_tuning_keeps_the_offline_data_and_continues_from_its_saved_transitions(tmp_path):
+    """With ``online_fraction``, ``learn`` is SAC's: env steps, new transitions in the online part of the buffer
+    beside the untouched offline data, returns-to-go for each ended episode; the saved buffer holds the online
+    transitions, and a loaded model continues with them."""
+    offline = random_pendulum_buffer(400)
+    env = gym.make("Pendulum-v1")  # episodes of 200 steps
+    model = CQL("MlpPolicy", env, dataset=offline, batch_size=32, policy_kwargs=TINY, cql_calibrated=True,
+                online_fraction=0.5, online_buffer_size=5_000, seed=0)  # fmt: skip
+    before = model.replay_buffer.observations.copy()
+    model.set_logger(configure(str(tmp_path / "logs"), ["csv"]))
+    model.learn(450, log_interval=1)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, MixedReplayBuffer) and isinstance(buffer.online, ReturnToGoReplayBuffer)
+    assert model.num_timesteps == 450 and model._n_updates == 450  # one gradient step per env step
+    assert (buffer.offline.size(), buffer.online.size(), buffer.online.buffer_size) == (400, 450, 5_000)
+    np.testing.assert_array_equal(buffer.offline.observations, before)
+    finite = np.isfinite(buffer.online.returns_to_go[:450, 0])
+    assert finite[:400].all() and not finite[400:].any()  # two episodes ended, the third is under way
+    logged = pd.read_csv(tmp_path / "logs" / "progress.csv")
+    assert {"rollout/ep_rew_mean", "train/cql_bound_rate", "time/fps"} <= set(logged.columns)
+
+    model.save(tmp_path / "tuned")
+    model.save_replay_buffer(tmp_path / "tuned_buffer")
+    loaded = CQL.load(tmp_path / "tuned", env=env)
+    loaded.load_replay_buffer(tmp_path / "tuned_buffer")
+    with pytest.raises(ValueError, match="batch_size=32 offline transitions or more"):  # no dataset id to reload
+        loaded.learn(10)
+    loaded.replay_buffer.set_offline(buffer.offline)
+    loaded.learn(100)
+    assert loaded.replay_buffer.online.size() == 550 and loaded.online_fraction == 0.5
+    assert np.isfinite(loaded.replay_buffer.online.returns_to_go[400:550, 0]).sum() == 0  # the cut episode: no bound
+
+
+def test_a_model_trained_offline_fine_tunes_after_load_with_an_online_fraction(tmp_path, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "datasets"))
+    dataset = collect_dataset(CollectionSpec(n_episodes=1, env_kwargs={"action_mode": "delta"}),
+                              "sb3cql/Panda-v0/pid-delta-v0", progress_bar=False)  # fmt: skip
+    env = gym.make("Panda-v0", action_mode="delta", max_episode_steps=40)
+    CQL("MlpPolicy", env, dataset="sb3cql/Panda-v0/pid-delta-v0", batch_size=32, policy_kwargs=TINY).save(tmp_path / "m")
+    force = gym.make("PandaForce-v0", action_mode="delta", max_episode_steps=40)
+    model = CQL.load(tmp_path / "m", env=force, online_fraction=0.5, online_buffer_size=1_000)
+    model.learn(50)  # the offline data come back from the dataset id
+    assert (model.replay_buffer.offline.size(), model.replay_buffer.online.size()) == (dataset.total_steps, 50)
+    assert model.replay_buffer.online.timeouts[39, 0] == 1.0  # the env's time limit is kept apart from terminations
+    with pytest.raises(ValueError, match="spaces do not match"):
+        CQL.load(tmp_path / "m", env=gym.make("PandaForce-v0"), online_fraction=0.5)  # absolute actions
 
 
 def test_warm_start_imitates_saturated_data_actions():

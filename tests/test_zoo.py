@@ -121,6 +121,36 @@ def test_a_finished_training_says_where_its_models_are_and_how_to_use_them(zoo, 
     ]
 
 
+def test_fine_tuning_online_checkpoints_its_transitions_and_continues_from_them(zoo, trained):
+    finetune = ["--algo", "cql", "--env", "PandaForce-v0", "--conf-file", "cql_finetune.yml", "-f", "finetune"]
+    zoo.run(*finetune, "-i", str(trained / "Panda-v0.zip"), "-n", "300", "--eval-freq", "150", "--eval-episodes", "1",
+            "--save-freq", "150", "-tb", "tb", "--seed", "0")  # fmt: skip
+    run = zoo.root / "finetune" / "cql" / "PandaForce-v0_1"
+    assert np.load(run / "evaluations.npz")["timesteps"].tolist() == [150, 300]  # env steps
+    (events,) = (zoo.root / "tb" / "PandaForce-v0").glob("CQL_1/events.out.tfevents.*")
+    assert "eval/success_rate" in EventAccumulator(str(events)).Reload().Tags()["scalars"]
+    assert (run / "rl_model_replay_buffer_150_steps.pkl").is_file()
+    online_size = "from sb3_cql import CQL; m = CQL.load('{}'); m.load_replay_buffer('{}'); print(m.replay_buffer.online.size())"
+    # A checkpoint is saved before its step's transition is stored.
+    assert zoo.python(online_size.format(run / "PandaForce-v0.zip", run / "rl_model_replay_buffer_300_steps.pkl")) == "299"
+
+    output = zoo.run(*finetune, "-i", str(run / "rl_model_150_steps.zip"), "-n", "100", "--eval-freq", "-1",
+                     "--save-replay-buffer")  # fmt: skip
+    assert f"Loading the replay buffer of the checkpoint: {run / 'rl_model_replay_buffer_150_steps.pkl'}" in output
+    resumed = zoo.root / "finetune" / "cql" / "PandaForce-v0_2"
+    assert zoo.python(online_size.format(resumed / "PandaForce-v0.zip", resumed / "replay_buffer.pkl")) == "249"
+
+    mismatch = subprocess.run([sys.executable, "-m", "rl_zoo3.train", *finetune, "-i", str(trained / "Panda-v0.zip"),
+                               "--env-kwargs", "action_mode:'absolute'"], cwd=zoo.root, env=zoo.env,
+                              capture_output=True, text=True)  # fmt: skip
+    assert mismatch.returncode == 2 and "Traceback" not in mismatch.stderr
+    assert mismatch.stderr.strip().splitlines()[-1].startswith(
+        f"python -m rl_zoo3.train: error: {trained / 'Panda-v0.zip'} does not fit PandaForce-v0 {{'action_mode': 'absolute'}}: "
+        "Action spaces do not match"
+    )
+    assert not (zoo.root / "finetune" / "cql" / "PandaForce-v0_3").exists()
+
+
 def test_ctrl_c_during_training_keeps_the_model_and_says_so_in_one_line(zoo):
     run = zoo.root / "logs" / "bc" / "Panda-v0_1"
     status, stdout, stderr = interrupt(

@@ -1,6 +1,13 @@
-"""What the offline algorithms share: SAC's networks trained from a dataset instead of an env."""
+"""What the offline algorithms share: SAC's networks trained from a dataset instead of an env, and fine-tuned online."""
 
-from sb3_cql.common.buffers import ReturnToGoReplayBuffer, ReturnToGoSamples, returns_to_go
+from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer, ReturnToGoSamples, returns_to_go
 from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
 
-__all__ = ["OfflineSAC", "ReturnToGoReplayBuffer", "ReturnToGoSamples", "behaviour_cloning_loss", "returns_to_go"]
+__all__ = [
+    "MixedReplayBuffer",
+    "OfflineSAC",
+    "ReturnToGoReplayBuffer",
+    "ReturnToGoSamples",
+    "behaviour_cloning_loss",
+    "returns_to_go",
+]

@@ -1,4 +1,6 @@
-"""A replay buffer that also holds each transition's discounted return-to-go, for calibrated CQL (Cal-QL)."""
+"""Replay buffers of offline training and online fine-tuning: one that also holds each transition's discounted
+return-to-go, for calibrated CQL (Cal-QL), and one that keeps the offline data beside the online transitions and
+samples a set fraction of every batch from each (RLPD)."""
 
 from __future__ import annotations
 
@@ -6,7 +8,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.buffers import BaseBuffer, ReplayBuffer
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 
@@ -137,3 +140,107 @@ class ReturnToGoReplayBuffer(ReplayBuffer):
             self.returns_to_go[batch_inds, env_indices].reshape(-1, 1),
         )
         return ReturnToGoSamples(*tuple(map(self.to_torch, data)))
+
+    def start_new_episodes(self) -> None:
+        """The next :meth:`add` starts a new episode in every env: an episode left unfinished (the env was reset, as
+        when training resumes from a checkpoint) keeps ``-inf``, no bound."""
+        self.episode_starts[:] = self.pos
+
+
+class MixedReplayBuffer(ReplayBuffer):
+    """Offline data and online transitions side by side, sampled as RLPD does (Ball et al. 2023,
+    https://arxiv.org/abs/2302.02948): :meth:`add` stores in the ``online`` part, and every batch draws
+    ``round(online_fraction * batch_size)`` samples from it (none while it is empty) and the rest from the ``offline``
+    part. RLPD's symmetric sampling is ``online_fraction=0.5``.
+
+    The two parts are buffers of the same class (``ReplayBuffer``, or :class:`ReturnToGoReplayBuffer` for calibrated
+    CQL, whose online episodes get their returns-to-go when they end). Pickled (``save_replay_buffer``, a
+    checkpoint's buffer), it keeps the online transitions only, up to the filled size: the offline data come back
+    from their dataset (``offline`` is ``None`` until :meth:`set_offline`).
+
+    :param offline: the offline data.
+    :param online: the empty (or resumed) buffer of online transitions; its ``buffer_size`` is their capacity.
+    :param online_fraction: the fraction of every batch drawn from the online transitions, in [0, 1].
+    """
+
+    def __init__(self, offline: ReplayBuffer | None, online: ReplayBuffer, online_fraction: float = 0.5) -> None:
+        if not 0.0 <= online_fraction <= 1.0:
+            raise ValueError(f"online_fraction must be in [0, 1], got {online_fraction}")
+        BaseBuffer.__init__(self, online.buffer_size, online.observation_space, online.action_space, online.device,
+                            online.n_envs)  # fmt: skip
+        self.online, self.online_fraction, self.offline = online, online_fraction, None
+        self.optimize_memory_usage = False
+        self.handle_timeout_termination = online.handle_timeout_termination
+        if offline is not None:
+            self.set_offline(offline)
+
+    def set_offline(self, offline: ReplayBuffer) -> None:
+        """Put the offline data in (after loading a pickled buffer, which holds the online transitions only)."""
+        if type(offline) is not type(self.online):
+            raise ValueError(f"the offline and online parts must be buffers of one class, got {type(offline).__name__} "
+                             f"and {type(self.online).__name__}")  # fmt: skip
+        if offline.obs_shape != self.online.obs_shape or offline.action_dim != self.online.action_dim:
+            raise ValueError(
+                f"the offline data's observations {offline.obs_shape} and actions ({offline.action_dim},) do not match "
+                f"the online ones' {self.online.obs_shape} and ({self.online.action_dim},)"
+            )
+        offline.device = self.device
+        self.offline = offline
+
+    @property
+    def device(self) -> th.device:
+        return self._device
+
+    @device.setter
+    def device(self, device: th.device | str) -> None:  # SB3's load_replay_buffer moves a loaded buffer's device
+        self._device = th.device(device) if isinstance(device, str) else device
+        for part in (getattr(self, "offline", None), getattr(self, "online", None)):
+            if part is not None:
+                part.device = self._device
+
+    def size(self) -> int:
+        return self.online.size() + (0 if self.offline is None else self.offline.size())
+
+    def add(self, *args: Any, **kwargs: Any) -> None:
+        self.online.add(*args, **kwargs)
+
+    def reset(self) -> None:
+        """Forget the online transitions (the offline data stay)."""
+        self.online.reset()
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples | ReturnToGoSamples:
+        if self.offline is None:
+            raise ValueError("the buffer has no offline data: set_offline() first (a pickled buffer leaves them out)")
+        n_online = round(self.online_fraction * batch_size) if self.online.size() > 0 else 0
+        parts = [part.sample(n, env) for part, n in ((self.offline, batch_size - n_online), (self.online, n_online)) if n]
+        if len(parts) == 1:
+            return parts[0]
+        return type(parts[0])(*(None if fields[0] is None else th.cat(fields) for fields in zip(*parts)))
+
+    def start_new_episodes(self) -> None:
+        """See :meth:`ReturnToGoReplayBuffer.start_new_episodes` (nothing for a plain online part)."""
+        if isinstance(self.online, ReturnToGoReplayBuffer):
+            self.online.start_new_episodes()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["offline"] = None
+        online = self.online.__dict__.copy()  # the filled rows only: a checkpoint of 10,000 steps is not 1,000,000's
+        size, trimmed = self.online.size(), []
+        for key, value in online.items():
+            if isinstance(value, np.ndarray) and value.ndim >= 2 and len(value) == self.online.buffer_size:
+                online[key], trimmed = value[:size].copy(), [*trimmed, key]
+        state["online"] = (type(self.online), online, trimmed)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        online_class, online, trimmed = state["online"]
+        for key in trimmed:
+            value = online[key]
+            full = np.full((online["buffer_size"], *value.shape[1:]), -np.inf if key == "returns_to_go" else 0,
+                           dtype=value.dtype)  # fmt: skip
+            full[: len(value)] = value
+            online[key] = full
+        state["online"] = online_class.__new__(online_class)
+        state["online"].__dict__.update(online)
+        self.__dict__.update(state)

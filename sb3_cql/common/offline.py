@@ -1,9 +1,12 @@
-"""SAC's networks and replay buffer trained offline, from a dataset: the base of :class:`~sb3_cql.CQL` and
-:class:`~sb3_cql.BC`."""
+"""SAC's networks and replay buffer trained offline, from a dataset, and fine-tuned online with the dataset kept in the
+buffer: the base of :class:`~sb3_cql.CQL` and :class:`~sb3_cql.BC`."""
 
 from __future__ import annotations
 
+import io
+import os
 import time
+from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 import torch as th
@@ -16,6 +19,7 @@ from stable_baselines3.common.utils import FloatSchedule
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
+from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer
 from sb3_cql.common.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
 from sb3_cql.data import ensure_dataset, fill_replay_buffer
 
@@ -33,6 +37,14 @@ class OfflineSAC(SAC):
     :meth:`learn` making one gradient step per timestep without ever stepping the env (it gives the spaces;
     callbacks such as ``EvalCallback`` use their own envs). Subclasses write :meth:`train`.
 
+    With ``online_fraction`` set, :meth:`learn` fine-tunes online instead: it is SAC's (``collect_rollouts`` in the
+    env, then ``train``, with ``train_freq``, ``gradient_steps`` and ``learning_starts``), its timesteps are env steps,
+    and the replay buffer is a :class:`~sb3_cql.common.MixedReplayBuffer`: the offline data stay, the new transitions
+    go to an online part of ``online_buffer_size``, and every batch draws ``online_fraction`` of its samples from
+    them. A model trained offline fine-tunes after ``load(path, env=env, online_fraction=0.5)``; its buffer
+    (``save_replay_buffer``, checkpoints) holds the online transitions, and the offline data come back from the
+    dataset id.
+
     Observations are z-scored with the dataset's statistics (``normalize_observations``) inside the policy, so
     ``predict`` applies the same normalisation after ``save``/``load``. :meth:`load` does not reload the data: a
     loaded model predicts with a one-transition buffer, and refills it from its dataset id when it trains again.
@@ -46,6 +58,10 @@ class OfflineSAC(SAC):
     :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param online_fraction: ``None`` to train offline; else fine-tune online, drawing this fraction of every batch
+        from the online transitions (RLPD's symmetric sampling: 0.5).
+    :param online_buffer_size: capacity of the online transitions when fine-tuning.
+    :param learning_starts: env steps of random actions before training starts, when fine-tuning (SAC's).
     :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``policy_kwargs``, ``seed``, ...).
     """
 
@@ -64,10 +80,17 @@ class OfflineSAC(SAC):
         actor_learning_rate: float | Schedule | None = None,
         buffer_size: int = 2_000_000,
         normalize_observations: bool = True,
+        online_fraction: float | None = None,
+        online_buffer_size: int = 1_000_000,
+        learning_starts: int = 0,
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
+        if online_fraction is not None and not 0.0 <= online_fraction <= 1.0:
+            raise ValueError(f"online_fraction must be None (offline training) or in [0, 1], got {online_fraction}")
         self.dataset = dataset
+        self.online_fraction = online_fraction
+        self.online_buffer_size = online_buffer_size
         self.actor_learning_rate = actor_learning_rate
         self.normalize_observations = normalize_observations
         self._fill_on_setup = True  # load() turns it off: a loaded model does not reload its data
@@ -80,7 +103,7 @@ class OfflineSAC(SAC):
             learning_rate=learning_rate,
             # The dataset's own buffer replaces SB3's: allocate nothing here.
             buffer_size=1 if dataset is not None else buffer_size,
-            learning_starts=0,
+            learning_starts=learning_starts,
             policy_kwargs=policy_kwargs,
             **kwargs,
         )
@@ -118,32 +141,35 @@ class OfflineSAC(SAC):
         self: SelfOfflineSAC,
         total_timesteps: int,
         callback: MaybeCallback = None,
-        log_interval: int = 1000,
+        log_interval: int | None = None,
         tb_log_name: str | None = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfOfflineSAC:
-        """Make ``total_timesteps`` gradient steps on the replay buffer, calling the callbacks after each one.
+        """Make ``total_timesteps`` gradient steps on the replay buffer, calling the callbacks after each one; with
+        ``online_fraction`` set, fine-tune online for ``total_timesteps`` env steps instead (SAC's ``learn``).
 
-        :param total_timesteps: gradient steps.
-        :param callback: SB3 callback(s), called once per gradient step.
-        :param log_interval: gradient steps between two dumps of the logs.
+        :param total_timesteps: gradient steps (offline) or env steps (online).
+        :param callback: SB3 callback(s), called once per gradient step (offline) or env step (online).
+        :param log_interval: gradient steps between two dumps of the logs (offline, default 1000), or episodes
+            (online, default SAC's 4).
         :param tb_log_name: name of the TensorBoard run; by default the algorithm's class name (``CQL``, ``BC``).
         :param reset_num_timesteps: count from 0 (else continue the count of a previous ``learn``).
-        :param progress_bar: show a progress bar of the gradient steps.
+        :param progress_bar: show a progress bar of the steps.
         """
-        too_few = self.replay_buffer is None or self.replay_buffer.size() < self.batch_size
-        if too_few and isinstance(self.dataset, str):  # a loaded model trains on its dataset again
-            self._fill_from_dataset(self.dataset)
-        if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
-            size = 0 if self.replay_buffer is None else self.replay_buffer.size()
-            raise ValueError(f"offline training needs batch_size={self.batch_size} transitions or more, the buffer has {size}")
         # CPU torch slows down by 40x on denormal floats, which near-converged networks produce.
         th.set_flush_denormal(True)
         # Each step allocates and frees ~11 MB activations: keep that memory instead of page-faulting it back in.
         retain_freed_memory()
+        tb_log_name = tb_log_name or type(self).__name__
+        if self.online_fraction is not None:
+            self._prepare_online_buffer(reset_num_timesteps)
+            log_interval = 4 if log_interval is None else log_interval
+            return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
+        log_interval = 1000 if log_interval is None else log_interval
+        self._ensure_offline_data()
         total_timesteps, callback = self._setup_learn(
-            total_timesteps, callback, reset_num_timesteps, tb_log_name or type(self).__name__, progress_bar
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
         )
         callback.on_training_start(locals(), globals())
         while self.num_timesteps < total_timesteps:
@@ -158,6 +184,53 @@ class OfflineSAC(SAC):
         callback.on_training_end()
         return self
 
+    def _ensure_offline_data(self) -> None:
+        """Refill a loaded model's buffer from its dataset id; refuse a buffer smaller than one batch."""
+        too_few = self.replay_buffer is None or self.replay_buffer.size() < self.batch_size
+        if too_few and isinstance(self.dataset, str):  # a loaded model trains on its dataset again
+            self._fill_from_dataset(self.dataset)
+        if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
+            size = 0 if self.replay_buffer is None else self.replay_buffer.size()
+            hint = "" if isinstance(self.dataset, str) else " (a loaded model reloads its data from a dataset id; this one has none)"
+            raise ValueError(f"training needs batch_size={self.batch_size} offline transitions or more, the buffer has {size}{hint}")
+
+    def _prepare_online_buffer(self, reset_num_timesteps: bool) -> None:
+        """Make the replay buffer a :class:`MixedReplayBuffer`: the offline data (the buffer's, or reloaded from the
+        dataset id, also under a loaded buffer of online transitions) and an online part of ``online_buffer_size``."""
+        mixed = self.replay_buffer if isinstance(self.replay_buffer, MixedReplayBuffer) else None
+        if mixed is None:
+            self._ensure_offline_data()
+            offline = self.replay_buffer
+            assert offline is not None
+            mixed = MixedReplayBuffer(offline, self._empty_buffer_like(offline), self.online_fraction)
+        elif mixed.offline is None:  # a loaded buffer of online transitions: the offline data come from the dataset
+            self.replay_buffer = None
+            try:
+                self._ensure_offline_data()
+                offline = self.replay_buffer
+            finally:
+                self.replay_buffer = mixed  # kept, also when the data cannot be loaded
+            mixed.set_offline(offline)
+        mixed.online_fraction = self.online_fraction  # a fraction given to load() applies to a loaded buffer too
+        self.replay_buffer = mixed
+        if reset_num_timesteps or self._last_obs is None:  # SB3's learn resets the env: a new episode starts
+            mixed.start_new_episodes()
+
+    def _empty_buffer_like(self, buffer: ReplayBuffer) -> ReplayBuffer:
+        """An empty buffer of ``online_buffer_size`` of ``buffer``'s class and settings, for this model's env."""
+        kwargs: dict[str, Any] = {}
+        if isinstance(buffer, ReturnToGoReplayBuffer):
+            kwargs = {"gamma": buffer.gamma, "reward_scale": buffer.reward_scale, "reward_bias": buffer.reward_bias}
+        return type(buffer)(
+            self.online_buffer_size,
+            self.observation_space,
+            self.action_space,
+            device=self.device,
+            n_envs=self.n_envs,
+            handle_timeout_termination=True,
+            **kwargs,
+        )
+
     def _dump_offline_logs(self) -> None:
         elapsed = max(time.time_ns() - self.start_time, 1) / 1e9
         steps = self.num_timesteps - self._num_timesteps_at_start
@@ -165,6 +238,20 @@ class OfflineSAC(SAC):
         self.logger.record("time/time_elapsed", int(elapsed), exclude="tensorboard")
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(step=self.num_timesteps)
+
+    def save_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase) -> None:
+        """SB3's, written to a temporary file then renamed: an interrupted save leaves the previous file whole. A
+        fine-tuning model's :class:`MixedReplayBuffer` saves its online transitions only."""
+        if isinstance(path, io.BufferedIOBase):
+            super().save_replay_buffer(path)
+            return
+        final = Path(path) if Path(path).suffix else Path(path).with_suffix(".pkl")
+        partial = final.with_name(f".{final.stem}.partial.pkl")
+        try:
+            super().save_replay_buffer(partial)
+            os.replace(partial, final)
+        finally:
+            partial.unlink(missing_ok=True)
 
     @classmethod
     def load(cls, path, env=None, device="auto", custom_objects=None, print_system_info=False, force_reset=True, **kwargs):

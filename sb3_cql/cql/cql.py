@@ -43,7 +43,8 @@ class CQL(OfflineSAC):
     :meth:`learn` makes one gradient step per timestep, stepping the env never (it only gives the spaces, and
     callbacks such as ``EvalCallback`` use their own envs). Observations are z-scored with the dataset's
     statistics (``normalize_observations``) inside the policy, so ``predict`` applies the same normalisation after
-    ``save``/``load``.
+    ``save``/``load``. With ``online_fraction``, :meth:`learn` fine-tunes online, the dataset kept in the buffer
+    (the same loss; ``cql_calibrated`` gives new episodes their returns-to-go when they end).
 
     Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
     learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere.
@@ -94,6 +95,15 @@ class CQL(OfflineSAC):
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
     :param reward_bias: see ``reward_scale``.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param online_fraction: ``None`` (the default) trains offline. A fraction fine-tunes online: :meth:`learn` steps
+        the env as SAC's does, timesteps are env steps, the offline data stay in the replay buffer (a
+        :class:`~sb3_cql.common.MixedReplayBuffer`) and every batch draws this fraction of its samples from the online
+        transitions (RLPD's symmetric sampling: 0.5). Given to :meth:`load`, it fine-tunes a model trained offline.
+    :param online_buffer_size: capacity of the online transitions when fine-tuning.
+    :param learning_starts: env steps of uniform random actions before training starts, when fine-tuning (SAC's;
+        0 keeps the trained policy acting from the first step).
+    :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
+    :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's; ``-1``: as many as env steps).
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
     :param verbose: 0 silent, 1 training logs, 2 debug.
@@ -129,6 +139,11 @@ class CQL(OfflineSAC):
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
         normalize_observations: bool = True,
+        online_fraction: float | None = None,
+        online_buffer_size: int = 1_000_000,
+        learning_starts: int = 0,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
@@ -160,8 +175,13 @@ class CQL(OfflineSAC):
             actor_learning_rate=actor_learning_rate,
             buffer_size=buffer_size,
             normalize_observations=normalize_observations,
+            online_fraction=online_fraction,
+            online_buffer_size=online_buffer_size,
+            learning_starts=learning_starts,
             policy_kwargs=policy_kwargs,
             batch_size=batch_size,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
             tau=tau,
             gamma=gamma,
             ent_coef=ent_coef,

@@ -24,6 +24,8 @@ ALGOS = (ALGO, "bc")
 #: ``train.py``'s defaults of ``--eval-freq`` and ``--eval-episodes``: a config's ``eval_freq`` / ``n_eval_episodes``
 #: replace them; a value given on the command line (or any other value) wins over the config.
 ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
+#: ``train.py``'s default of ``--save-freq`` (no checkpoints): a config's ``save_freq`` replaces it.
+ZOO_DEFAULT_SAVE_FREQ = -1
 
 
 def hyperparams_dir() -> Path:
@@ -78,6 +80,22 @@ def _left_at_default(option: str, value: Any, default: Any) -> bool:
     return value == default and not any(arg == option or arg.startswith(f"{option}=") for arg in sys.argv[1:])
 
 
+def _our_config(config: str) -> str:
+    """``config`` (``--conf-file``), or where it names one of our files that is not there (``cql_finetune.yml``
+    outside the source tree), our installed copy of it."""
+    ours = hyperparams_dir() / Path(config).name
+    return str(ours) if not Path(config).exists() and ours.is_file() else config
+
+
+def _checkpoint_buffer(model_path: Path) -> Path | None:
+    """The replay buffer saved with a checkpoint ``rl_model_<N>_steps.zip`` (SB3's ``CheckpointCallback``), if any."""
+    prefix, steps = model_path.stem.rsplit("_", 2)[0], model_path.stem.rsplit("_", 2)[-2:]
+    if steps[-1] != "steps" or not steps[0].isdigit():
+        return None
+    path = model_path.with_name(f"{prefix}_replay_buffer_{steps[0]}_steps.pkl")
+    return path if path.is_file() else None
+
+
 def _holds_a_model(folder: Path) -> bool:
     """Whether a zoo run folder holds a saved model (any ``.zip``): a run that got as far as its first checkpoint."""
     return any(folder.rglob("*.zip"))
@@ -95,9 +113,12 @@ def _run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
 
 
 def _extend_exp_manager(exp_manager: ModuleType) -> None:
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
     manager = exp_manager.ExperimentManager
     init, preprocess = manager.__init__, manager._preprocess_hyperparams
     setup, learn, save = manager.setup_experiment, manager.learn, manager.save_trained_model
+    load_pretrained = manager._load_pretrained_agent
     init_signature = inspect.signature(init)
 
     @functools.wraps(init)
@@ -107,6 +128,8 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             ours = config_file(self.algo, self.env_name.gym_id)
             if ours is not None:
                 self.config = str(ours)
+        else:
+            self.config = _our_config(self.config)
 
     @functools.wraps(preprocess)
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
@@ -118,6 +141,9 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             "--eval-episodes", self.n_eval_episodes, ZOO_DEFAULT_EVAL_EPISODES
         ):
             self.n_eval_episodes = int(n_eval_episodes)
+        save_freq = hyperparams.pop("save_freq", None)
+        if save_freq is not None and _left_at_default("--save-freq", self.save_freq, ZOO_DEFAULT_SAVE_FREQ):
+            self.save_freq = int(save_freq)
         result = preprocess(self, hyperparams)
         if self._eval_env_kwargs_args is None:
             # The zoo gives a config's env_kwargs to the training env only (it copied the empty command-line value
@@ -144,8 +170,32 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 raise SystemExit(130) from None
             raise
 
+    @functools.wraps(load_pretrained)
+    def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: Any) -> Any:
+        # -i MODEL: a model that does not fit the env gets one line (SB3 raises on its spaces); a checkpoint of an
+        # online fine-tuning continues with the online transitions saved beside it.
+        try:
+            model = load_pretrained(self, hyperparams, env)
+        except ValueError as error:
+            if "spaces do not match" not in str(error):
+                raise
+            print(f"python -m rl_zoo3.train: error: {self.trained_agent} does not fit {self.env_name.gym_id} "
+                  f"{self.env_kwargs or ''}: {' '.join(str(error).split())}", file=sys.stderr)  # fmt: skip
+            raise SystemExit(2) from None
+        buffer = _checkpoint_buffer(Path(self.trained_agent))
+        beside = Path(self.trained_agent).with_name("replay_buffer.pkl")
+        if getattr(model, "online_fraction", None) is not None and buffer is not None and not beside.is_file():
+            print(f"Loading the replay buffer of the checkpoint: {buffer}")
+            model.load_replay_buffer(buffer)
+        return model
+
     @functools.wraps(learn)
     def learn_(self, model: Any) -> None:
+        if getattr(model, "online_fraction", None) is not None:
+            # Online fine-tuning: a checkpoint keeps the online transitions too, to continue from (-i CHECKPOINT).
+            for callback in self.callbacks:
+                if isinstance(callback, CheckpointCallback):
+                    callback.save_replay_buffer = True
         # The zoo ends training quietly on Ctrl-C (it catches KeyboardInterrupt) and saves the model: note that it
         # was cut short, to say so after the save.
         self._sb3_cql_interrupted = False
@@ -184,6 +234,7 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
     manager._preprocess_hyperparams = _preprocess_hyperparams
     manager.setup_experiment = setup_experiment
     manager.learn = learn_
+    manager._load_pretrained_agent = _load_pretrained_agent
     manager.save_trained_model = save_trained_model
 
 
