@@ -257,3 +257,51 @@ def test_a_checkpoint_cut_short_by_a_kill_is_not_resumed(tmp_path):
     (segment / "rl_model_200_steps.zip").write_bytes(whole[: len(whole) // 2])
     assert model_timesteps(segment / "rl_model_200_steps.zip") is None
     assert run.latest_model() == (100, segment / "rl_model_100_steps.zip") and not run.is_complete()
+
+
+def test_a_run_started_from_an_outside_model_begins_at_step_0_and_resumes_from_its_own(tmp_path):
+    """A fine-tuning run's first segment continues (``-i``) a model from elsewhere: its steps start at 0; a later
+    segment continues one of the run's own checkpoints."""
+    import yaml
+    from stable_baselines3 import SAC
+
+    model = SAC("MlpPolicy", "Pendulum-v1", policy_kwargs={"net_arch": [8]}, buffer_size=10, device="cpu")
+    for number, source, steps in ((1, "/elsewhere/Panda-v0_1/best_model.zip", (100, 200)),
+                                  (2, "Pendulum-v1_1/rl_model_100_steps.zip", (50,))):  # fmt: skip
+        segment = tmp_path / "cql" / f"Pendulum-v1_{number}"
+        (segment / "Pendulum-v1").mkdir(parents=True)
+        args = {"n_timesteps": 300 if number == 1 else 200, "trained_agent": source}
+        (segment / "Pendulum-v1" / "args.yml").write_text(yaml.safe_dump(args))
+        (segment / "Pendulum-v1" / "config.yml").write_text(yaml.safe_dump({"n_timesteps": 40_000}))
+        for step in steps:
+            model.num_timesteps = step
+            model.save(segment / f"rl_model_{step}_steps.zip")
+    with pytest.raises(RuntimeError, match="not a model of this run"):
+        Run.read(tmp_path / "cql", "Pendulum-v1")  # an offline run never starts from elsewhere
+    run = Run.read(tmp_path / "cql", "Pendulum-v1", outside_start=True)
+    assert [(s.offset, s.cut, s.resumed_from) for s in run.segments] == [
+        (0, 100, None), (100, None, "Pendulum-v1_1/rl_model_100_steps.zip")]  # fmt: skip
+    assert run.n_timesteps == 300 and run.latest_model() == (150, tmp_path / "cql" / "Pendulum-v1_2" / "rl_model_50_steps.zip")
+
+
+def test_fine_tuning_is_a_stage_of_its_own_rows_after_the_offline_training(bench, quick):
+    results, _ = quick
+    args = ["--algos", "cql", "--finetune", "PandaForce-v0", "--n-timesteps", "200", "--eval-freq", "100",
+            "--save-freq", "100", "--results-dir", "quick", "--no-filmstrips", *TINY]  # fmt: skip
+    output = bench.run(*args).stdout
+    assert "[train cql seed 117] skipped: recorded" in output
+    assert "[finetune cql seed 117 PandaForce-v0] done: 200 steps in 1 segment(s)" in output
+    record = json.loads((results / "records" / "train" / "cql-finetune-PandaForce-v0-seed117.json").read_text())
+    offline = json.loads((results / "records" / "train" / "cql-seed117.json").read_text())
+    assert record["started_from"] == offline["best_model"] and record["train_env"] == "PandaForce-v0"
+    assert record["best_model"].startswith("runs/seed117/finetune/cql/PandaForce-v0_1/")
+    assert list((results / record["best_model"]).parent.glob("rl_model_replay_buffer_*_steps.pkl"))
+    report = json.loads((results / "results.json").read_text())
+    assert {r["task"] for r in report["evaluations"] if r["algo"] == "cql-finetune-PandaForce-v0"} == set(TASKS)
+    (run,) = report["finetuning"]
+    start = json.loads((results / "records" / "eval" / "cql-seed117-PandaForce-v0.json").read_text())["success_rate"]
+    assert run["start"] == start and run["lowest_early"] is None  # no evaluation in the first 20% of 200 steps
+    table = (results / "table.md").read_text()
+    assert "| CQL + online on PandaForce-v0 |" in table and "Fine-tuning runs" in table
+    assert (results / "figures" / "finetune_PandaForce-v0.png").is_file()
+    assert "units: 0 done" in bench.run(*args).stdout  # recorded: skipped the second time

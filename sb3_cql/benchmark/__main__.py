@@ -7,9 +7,12 @@ the table and figures.
     python -m sb3_cql.benchmark --algos cql pid --seeds 117 573 --workers 2
     python -m sb3_cql.benchmark --report-only                     # table and figures again from results/
     python -m sb3_cql.benchmark --dataset sb3cql/Panda-v0/noisy-regrasp-delta-v0   # the thesis's 10,000 episodes
+    python -m sb3_cql.benchmark --algos cql pid-regrasp --finetune PandaForce-v0     # + online fine-tuning rows
 
 Every finished training and evaluation is recorded in the results folder, and the same command skips them; a
-killed training continues from its latest checkpoint (``--save-freq``).
+killed training continues from its latest checkpoint (``--save-freq``). ``--finetune TASK`` adds a stage: each
+seed's best CQL model fine-tuned online on TASK (hyperparams/cql_finetune.yml), a row of its own that used
+interaction with TASK, which it is then scored on too.
 """
 
 from __future__ import annotations
@@ -51,6 +54,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-freq", type=int, default=None, help="steps between checkpoints (default 10,000)")
     parser.add_argument("--dataset", default=None, help="dataset of the offline algorithms (default: configs')")
     parser.add_argument("--zoo-args", default="", help='more rl_zoo3.train arguments, e.g. "--hyperparams batch_size:64"')
+    parser.add_argument("--finetune", nargs="+", default=[], choices=list(envs.ENV_IDS), metavar="TASK",
+                        help="fine-tune each seed's best CQL model online on these tasks: rows of their own")
+    parser.add_argument("--finetune-args", default="", help="more rl_zoo3.train arguments of the fine-tuning runs, "
+                        'e.g. "--hyperparams cql_alpha:0.0" (SAC fine-tuning)')  # fmt: skip
     parser.add_argument("--report-only", action="store_true", help="only make the table and figures from results/")
     parser.add_argument("--no-filmstrips", action="store_true", help="skip the filmstrip figures (they play episodes)")
     args = parser.parse_args(argv)
@@ -68,9 +75,10 @@ def main(argv: list[str] | None = None) -> None:
                 episodes=args.episodes if args.episodes is not None else quick.get("episodes", 100),
                 zoo_args=shlex.split(args.zoo_args),
                 dataset=args.dataset,
+                finetune_args=shlex.split(args.finetune_args),
             )
             save_freq = args.save_freq if args.save_freq is not None else quick.get("save_freq", 10_000)
-            protocol = Protocol(results, args.algos, seeds, args.tasks, settings, save_freq, args.workers)
+            protocol = Protocol(results, args.algos, seeds, args.tasks, settings, save_freq, args.workers, args.finetune)
             try:
                 counts = run_protocol(protocol)
                 print(f"units: {counts['done']} done, {counts['skipped']} already recorded", flush=True)

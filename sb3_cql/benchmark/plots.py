@@ -3,6 +3,8 @@
 - ``training_success.png``: evaluation success rate during training, mean and 95% CI across seeds (figure 5.1);
 - ``training_losses.png``: policy loss and CQL's Q predictions on the data during training (figure 5.2);
 - ``final_success.png``: final success rate per task and algorithm, seeds as dots (figure 5.3);
+- ``finetune_<task>.png``: evaluation success rate against env steps of the runs fine-tuned online on ``task``,
+  mean and 95% CI across seeds, with the models they started from and the regrasping PD controller as lines;
 - ``filmstrip_<task>.png``: frames of one episode of each policy (figure 5.6).
 """
 
@@ -19,8 +21,8 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 import envs  # noqa: E402
-from sb3_cql.benchmark.records import ResultsFolder  # noqa: E402
-from sb3_cql.benchmark.report import algo_order  # noqa: E402
+from sb3_cql.benchmark.records import ResultsFolder, finetune_parts  # noqa: E402
+from sb3_cql.benchmark.report import algo_order, row_label  # noqa: E402
 from sb3_cql.benchmark.runs import Run  # noqa: E402
 
 #: TensorBoard tags of figure 5.2: the policy loss (every algorithm) and the Q predictions on the data (CQL).
@@ -47,11 +49,14 @@ def _on_common_steps(series: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.nd
     return common, np.array([[row[step] for step in common.tolist()] for row in rows]).reshape(len(rows), len(common))
 
 
-def _runs(results: ResultsFolder, training: list[dict[str, Any]]) -> dict[str, list[Run]]:
+def _runs(results: ResultsFolder, training: list[dict[str, Any]], finetuned: bool = False) -> dict[str, list[Run]]:
+    """The offline runs (or with ``finetuned`` the fine-tuning runs) of each row, read from their zoo folders."""
     runs: dict[str, list[Run]] = {}
     for record in training:
-        run = Run.read(results.run_dir(record["seed"]) / record["algo"], record["train_env"])
-        runs.setdefault(record["algo"], []).append(run)
+        if bool(record.get("started_from")) != finetuned:
+            continue
+        folder = results.root / record["log_folder"] if record.get("log_folder") else results.run_dir(record["seed"]) / record["algo"]
+        runs.setdefault(record["algo"], []).append(Run.read(folder, record["train_env"], outside_start=finetuned))
     return {algo: runs[algo] for algo in algo_order(runs)}
 
 
@@ -72,6 +77,29 @@ def training_success(results: ResultsFolder, runs: dict[str, list[Run]], pid_rat
     if pid_rate is not None:
         axis.axhline(pid_rate, color="black", linestyle="--", label="PID (final evaluation)")
     axis.set(xlabel="training step", ylabel="evaluation success rate", ylim=(-0.05, 1.05), title="Panda-v0, during training")
+    axis.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def finetune_success(runs: dict[str, list[Run]], summary: dict[str, dict[str, Any]], task: str, path: Path) -> None:
+    """Evaluations during the fine-tuning on ``task`` against env steps, beside the final evaluations on ``task`` of
+    the models they started from and of the regrasping PD controller."""
+    figure, axis = plt.subplots(figsize=(7, 4))
+    for row, row_runs in runs.items():
+        series = [run.evaluations() for run in row_runs if len(run.evaluations()[0])]
+        if series:
+            steps, curves = _on_common_steps(series)
+            _band(axis, steps, curves, row_label(row))
+            start = summary.get(finetune_parts(row)[0], {}).get(task)
+            if start is not None:
+                axis.axhline(start["mean"], color="gray", linestyle=":", label=f"start: {finetune_parts(row)[0].upper()} (final evaluation)")
+    teacher = summary.get("pid-regrasp", {}).get(task)
+    if teacher is not None:
+        axis.axhline(teacher["mean"], color="black", linestyle="--", label="PID-REGRASP (final evaluation)")
+    axis.set(xlabel="env step of the fine-tuning", ylabel="evaluation success rate", ylim=(-0.05, 1.05),
+             title=f"{task}, during online fine-tuning")  # fmt: skip
     axis.legend()
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
@@ -104,7 +132,7 @@ def final_success(summary: dict[str, dict[str, Any]], evaluations: list[dict[str
     for index, algo in enumerate(algos):
         positions = np.arange(len(tasks)) + (index - (len(algos) - 1) / 2) * width
         means = [summary[algo][task]["mean"] for task in tasks]
-        bars = axis.bar(positions, means, width=width * 0.9, label=algo.upper(), alpha=0.7)
+        bars = axis.bar(positions, means, width=width * 0.9, label=row_label(algo), alpha=0.7)
         for position, task in zip(positions, tasks, strict=True):
             rates = [r["success_rate"] for r in evaluations if r["algo"] == algo and r["task"] == task]
             mean, half = mean_ci95(np.array(rates).reshape(-1, 1))
@@ -181,6 +209,11 @@ def make_figures(results: ResultsFolder, report: dict[str, Any], filmstrips: boo
         training_success(results, runs, None if pid is None else pid["mean"], written[-1])
         written.append(results.figures / "training_losses.png")
         training_losses(runs, written[-1])
+    finetuned = _runs(results, training, finetuned=True)
+    for task in sorted({finetune_parts(row)[1] for row in finetuned}):
+        written.append(results.figures / f"finetune_{task}.png")
+        on_task = {row: row_runs for row, row_runs in finetuned.items() if finetune_parts(row)[1] == task}
+        finetune_success(on_task, summary, task, written[-1])
     if summary:
         written.append(results.figures / "final_success.png")
         final_success(summary, report["evaluations"], tasks, written[-1])
@@ -195,8 +228,8 @@ def make_figures(results: ResultsFolder, report: dict[str, Any], filmstrips: boo
                     policies[algo.upper()] = load_policy(algo, None, task), {}
                 elif algo in first_runs:
                     record = first_runs[algo]
-                    model = load_policy(str(results.root / record["best_model"]), algo, task)
-                    policies[algo.upper()] = model, record.get("env_kwargs", {})
+                    model = load_policy(str(results.root / record["best_model"]), finetune_parts(algo)[0], task)
+                    policies[row_label(algo)] = model, record.get("env_kwargs", {})
             seeds = [record["seed"] for record in [*training, *report["evaluations"]]]
             if policies and seeds:
                 seed = min(seeds)

@@ -4,9 +4,12 @@ results/
   protocol.json                     the settings; a re-run with other settings is refused
   runs/seed<S>/<algo>/<env>_<N>/    the zoo's log folders (``-f runs/seed<S>``), one per training segment
   runs/seed<S>/tb/<algo>/<env>_<N>/ their TensorBoard logs (``-tb``)
-  runs/seed<S>/<algo>.log           the zoo's output, all segments
-  records/train/<algo>-seed<S>.json one per finished training run
-  records/eval/<algo>-seed<S>-<task>.json  one per finished final evaluation
+  runs/seed<S>/<row>.log            the zoo's output, all segments
+  runs/seed<S>/finetune/...         the same for the online fine-tuning runs (``-f runs/seed<S>/finetune``)
+  records/train/<row>-seed<S>.json  one per finished training (or fine-tuning) run
+  records/eval/<row>-seed<S>-<task>.json  one per finished final evaluation
+
+A row is an algorithm, a PD controller, or an algorithm's runs fine-tuned online on a task (:data:`FINETUNE_ROW`).
   results.json, results.csv, table.md, figures/   the report, made again from the records
 """
 
@@ -20,6 +23,15 @@ import tempfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
+#: The row of an algorithm's runs fine-tuned online on a task: its best offline model, trained on with interaction.
+FINETUNE_ROW = "{algo}-finetune-{task}"
+
+
+def finetune_parts(row: str) -> tuple[str, str | None]:
+    """``(algorithm, task)`` of a fine-tuned row (:data:`FINETUNE_ROW`), ``(row, None)`` of any other."""
+    algo, separator, task = row.partition("-finetune-")
+    return (algo, task) if separator else (row, None)
 
 
 def write_text(path: Path, text: str) -> None:

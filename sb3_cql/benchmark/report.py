@@ -1,6 +1,6 @@
 """The protocol's numbers from its records: ``results.json``, ``results.csv`` and ``table.md`` (thesis Table 5.1:
 mean ± standard deviation over seeds, and the interquartile mean with 95% stratified-bootstrap confidence
-intervals from rliable)."""
+intervals from rliable; for fine-tuned rows, each run's start, early dip and best evaluation)."""
 
 from __future__ import annotations
 
@@ -11,10 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from sb3_cql.benchmark.records import ResultsFolder, read_json, write_json, write_text
+from sb3_cql.benchmark.records import ResultsFolder, finetune_parts, read_json, write_json, write_text
+from sb3_cql.benchmark.runs import Run
 
 #: Rows of the table in the thesis's order (then any other algorithm), and how they are printed.
 ROW_ORDER = ("cql", "bc", "pid", "pid-regrasp", "sac")
+#: The share of a fine-tuning run's env steps in which its early dip is looked for.
+EARLY_SHARE = 0.2
 #: Bootstrap resamples of the interval estimates; the generator's seed, so a report is made again identically.
 BOOTSTRAP_REPS, BOOTSTRAP_SEED = 2000, 0
 #: Columns of ``results.csv``: one row per final evaluation, with the run and the machine.
@@ -22,9 +25,16 @@ CSV_COLUMNS = ("algo", "seed", "task", "success_rate", "episodes", "best_step", 
                "eval_wall_time_s", "commit", "cpu_model", "cpu_count", "torch", "stable-baselines3")  # fmt: skip
 
 
-def algo_rank(algo: str) -> tuple[int, str]:
-    """Sort key of the table's rows."""
-    return (ROW_ORDER.index(algo) if algo in ROW_ORDER else len(ROW_ORDER), algo)
+def algo_rank(algo: str) -> tuple[int, int, str]:
+    """Sort key of the table's rows: a fine-tuned row right after its algorithm's."""
+    base, task = finetune_parts(algo)
+    return (ROW_ORDER.index(base) if base in ROW_ORDER else len(ROW_ORDER), task is not None, algo)
+
+
+def row_label(algo: str) -> str:
+    """How a row is printed: ``CQL``, ``CQL + online on PandaForce-v0``."""
+    base, task = finetune_parts(algo)
+    return base.upper() if task is None else f"{base.upper()} + online on {task}"
 
 
 def algo_order(algos: Iterable[str]) -> list[str]:
@@ -99,7 +109,11 @@ def markdown_table(summary: dict[str, dict[str, Any]], tasks: list[str], episode
             std = "n/a" if entry["std"] is None else f"{entry['std']:.3f}"
             cell = f"{entry['mean']:.3f} ± {std}"
             cells.append(f"**{cell}**" if entry["mean"] == best[task] else cell)
-        lines.append(f"| {algo.upper()} | " + " | ".join(cells) + " |")
+        lines.append(f"| {row_label(algo)} | " + " | ".join(cells) + " |")
+    if any(finetune_parts(algo)[1] for algo in summary):
+        lines += ["", "Rows \"+ online on TASK\": each seed's best model of the algorithm fine-tuned online with "
+                  "interaction with TASK (hyperparams/cql_finetune.yml), then scored like the others: on TASK they have "
+                  "trained on the task they are scored on."]  # fmt: skip
     lines += [
         "",
         f"Interquartile mean over seeds [95% stratified-bootstrap confidence interval, {BOOTSTRAP_REPS} resamples, rliable].",
@@ -112,7 +126,54 @@ def markdown_table(summary: dict[str, dict[str, Any]], tasks: list[str], episode
             f"{summary[algo][task]['iqm_ci95'][1]:.3f}]"
             for task in tasks
         ]
-        lines.append(f"| {algo.upper()} | " + " | ".join(cells) + " |")
+        lines.append(f"| {row_label(algo)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def finetune_runs(results: ResultsFolder, training: list[dict[str, Any]], evaluations: list[dict[str, Any]]
+                  ) -> list[dict[str, Any]]:  # fmt: skip
+    """Per fine-tuning run: its start (the final evaluation of the model it started from on its task), the lowest
+    evaluation in the first :data:`EARLY_SHARE` of its env steps, the early dip (that minus the start: negative is a
+    dip), and its best evaluation."""
+    final = {(r["algo"], r["seed"], r["task"]): r["success_rate"] for r in evaluations}
+    rows = []
+    for record in sorted(training, key=lambda r: (algo_rank(r["algo"]), r["seed"])):
+        base, task = finetune_parts(record["algo"])
+        if task is None or not record.get("log_folder"):
+            continue
+        steps, rates = Run.read(results.root / record["log_folder"], task, outside_start=True).evaluations()
+        early = rates[steps <= EARLY_SHARE * record["training_steps"]]
+        start = final.get((base, record["seed"], task))
+        lowest = float(early.min()) if len(early) else None
+        rows.append({
+            "algo": record["algo"], "seed": record["seed"], "task": task, "start": start, "lowest_early": lowest,
+            "early_dip": None if start is None or lowest is None else lowest - start,
+            "best_eval_success_rate": record["best_eval_success_rate"], "best_step": record["best_step"],
+            "training_steps": record["training_steps"],
+        })  # fmt: skip
+    return rows
+
+
+def finetune_table(rows: list[dict[str, Any]]) -> str:
+    """The fine-tuning runs' start, early dip and best evaluation, as a markdown table ('' without any)."""
+    if not rows:
+        return ""
+
+    def number(value: float | None) -> str:
+        return "n/a" if value is None else f"{value:.3f}"
+
+    lines = [
+        f"Fine-tuning runs: start (the starting model's final evaluation on the task), lowest evaluation in the first "
+        f"{EARLY_SHARE:.0%} of the env steps and its difference from the start (negative: a dip), best evaluation "
+        "during fine-tuning (its step).",
+        "",
+        "| row | seed | start | lowest early | early dip | best evaluation |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        best = f"{number(row['best_eval_success_rate'])} ({row['best_step']} of {row['training_steps']})"
+        lines.append(f"| {row_label(row['algo'])} | {row['seed']} | {number(row['start'])} | "
+                     f"{number(row['lowest_early'])} | {number(row['early_dip'])} | {best} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -123,6 +184,7 @@ def make_report(results: ResultsFolder, tasks: list[str]) -> dict[str, Any]:
     training, evaluations = results.training_records(), results.evaluation_records()
     matrices = success_matrix(evaluations, tasks)
     summary = summarise(matrices, tasks) if matrices else {}
+    finetuning = finetune_runs(results, training, evaluations)
     report = {
         "settings": protocol.get("settings"),
         "train_env": protocol.get("train_env"),
@@ -131,6 +193,7 @@ def make_report(results: ResultsFolder, tasks: list[str]) -> dict[str, Any]:
         "summary": summary,
         "training": training,
         "evaluations": evaluations,
+        "finetuning": finetuning,
     }
     write_json(results.root / "results.json", report)
     machine = {
@@ -147,5 +210,6 @@ def make_report(results: ResultsFolder, tasks: list[str]) -> dict[str, Any]:
         writer.writerow({**record, **machine})
     write_text(results.root / "results.csv", buffer.getvalue())
     episodes = (protocol.get("settings") or {}).get("episodes", 0)
-    write_text(results.root / "table.md", markdown_table(summary, tasks, episodes))
+    finetuned = finetune_table(finetuning)
+    write_text(results.root / "table.md", markdown_table(summary, tasks, episodes) + (f"\n{finetuned}" if finetuned else ""))
     return report

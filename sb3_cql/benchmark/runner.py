@@ -1,12 +1,13 @@
 """The protocol's units of work, each recorded on disk when done: train an algorithm with one seed (RL-Zoo3 in a
-subprocess, resumed from its last checkpoint after a kill), evaluate a policy on one task; and their scheduling
-over worker processes.
+subprocess, resumed from its last checkpoint after a kill), fine-tune its best model online on a task (the same way),
+evaluate a policy on one task; and their scheduling over worker processes.
 """
 
 from __future__ import annotations
 
 import ctypes
 import fcntl
+import inspect
 import multiprocessing
 import os
 import signal
@@ -25,7 +26,7 @@ from typing import Any
 import yaml
 
 import envs
-from sb3_cql.benchmark.records import ResultsFolder, read_json, system_info, write_json
+from sb3_cql.benchmark.records import FINETUNE_ROW, ResultsFolder, finetune_parts, read_json, system_info, write_json
 from sb3_cql.benchmark.runs import Run
 
 #: The task every algorithm trains on (thesis 4.3); the final evaluation covers all of ``envs.ENV_IDS``.
@@ -41,6 +42,15 @@ SCRIPTED = tuple(envs.CONTROLLERS)
 DEFAULT_ALGOS = ("cql", "bc", *SCRIPTED, "sac")
 #: Lines of a failed zoo run's log shown in the error.
 LOG_TAIL_LINES = 40
+#: The zoo config of the fine-tuning runs (in our hyperparams/).
+FINETUNE_CONFIG = "cql_finetune.yml"
+
+
+def fine_tunes(algo: str) -> bool:
+    """Whether the zoo algorithm ``algo`` fine-tunes online after offline training (it takes ``online_fraction``)."""
+    from rl_zoo3.utils import ALGOS
+
+    return algo in ALGOS and "online_fraction" in inspect.signature(ALGOS[algo].__init__).parameters
 
 
 class BenchmarkError(RuntimeError):
@@ -62,6 +72,8 @@ class Settings:
     :param zoo_args: extra arguments of every ``rl_zoo3.train`` call.
     :param dataset: the dataset every offline algorithm (a config with a ``dataset``) trains on; ``None``: each
         config's. The thesis's size: ``sb3cql/Panda-v0/noisy-regrasp-delta-v0`` (10,000 episodes).
+    :param finetune_args: extra arguments of the fine-tuning runs' ``rl_zoo3.train`` calls (``zoo_args`` are the
+        offline trainings'; a fine-tuned model keeps their settings).
     """
 
     n_timesteps: int | None = None
@@ -70,6 +82,7 @@ class Settings:
     episodes: int = 100
     zoo_args: list[str] = field(default_factory=list)
     dataset: str | None = None
+    finetune_args: list[str] = field(default_factory=list)
 
     def dataset_args(self, config_dataset: str | None) -> list[str]:
         """The zoo arguments with ``dataset`` in place of ``config_dataset`` (an online algorithm's ``None`` stays),
@@ -105,6 +118,8 @@ class Protocol:
     :param settings: the settings the numbers depend on.
     :param save_freq: steps between checkpoints, the points a killed training resumes from.
     :param workers: worker processes (each zoo process gets one torch thread when there are several).
+    :param finetune: tasks on which each seed's best offline model of every algorithm that fine-tunes (CQL) is
+        fine-tuned online (``hyperparams/cql_finetune.yml``), each a row of its own (:data:`FINETUNE_ROW`).
     """
 
     results: ResultsFolder
@@ -114,6 +129,7 @@ class Protocol:
     settings: Settings
     save_freq: int = 10_000
     workers: int = 1
+    finetune: list[str] = field(default_factory=list)
 
     def check(self) -> None:
         """Clear errors before any work: unknown algorithms or tasks, a zoo without our config for an algorithm."""
@@ -121,9 +137,12 @@ class Protocol:
 
         from sb3_cql.zoo.plugin import config_file
 
-        unknown_tasks = sorted(set(self.tasks) - set(envs.ENV_IDS))
+        unknown_tasks = sorted((set(self.tasks) | set(self.finetune)) - set(envs.ENV_IDS))
         if unknown_tasks:
             raise BenchmarkError(f"unknown task(s) {unknown_tasks}: choose among {list(envs.ENV_IDS)}")
+        if self.finetune and not any(fine_tunes(algo) for algo in self.algos):
+            raise BenchmarkError(f"--finetune {' '.join(self.finetune)}: none of --algos {' '.join(self.algos)} fine-tunes "
+                                 "online (cql does)")  # fmt: skip
         own_config = any(arg.startswith(("--conf-file", "-conf")) for arg in self.settings.zoo_args)
         for algo in self.algos:
             if algo in SCRIPTED:
@@ -193,26 +212,38 @@ def _log_tail(path: Path, lines: int = LOG_TAIL_LINES) -> str:
     return "\n".join([line for line in text if not line.startswith("argv[0]=")][-lines:])
 
 
-def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict[str, Any]:
+def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: str | None = None) -> dict[str, Any]:
     """Train ``algo`` on :data:`TRAIN_ENV` with ``seed`` through ``python -m rl_zoo3.train``, continuing the run on
     disk from its latest saved model if there is one (``-i``, ``-n`` the steps left); record and return the result.
+    With ``task``, fine-tune the recorded best model of that training online on ``task`` instead (the row
+    :data:`FINETUNE_ROW`), resumed the same way (a checkpoint brings its online transitions back).
 
     :raises BenchmarkError: if a zoo process fails (with the tail of its log) or makes no progress.
     """
     results, settings = protocol.results, protocol.settings
-    run_dir, log = results.run_dir(seed), results.training_log(algo, seed)
-    print(f"[train {algo} seed {seed}] started", flush=True)
-    log_folder = run_dir / algo
+    env_id, row = task or TRAIN_ENV, algo if task is None else FINETUNE_ROW.format(algo=algo, task=task)
+    zoo_folder = results.run_dir(seed) if task is None else results.run_dir(seed) / "finetune"
+    log, start_model = results.training_log(row, seed), None
+    if task is not None:
+        offline = read_json(results.training_record(algo, seed))
+        if offline is None:
+            raise BenchmarkError(f"{algo} seed {seed} is not trained yet: it has no model to fine-tune")
+        start_model = results.root / offline["best_model"]
+    label = f"finetune {algo} seed {seed} {task}" if task else f"train {algo} seed {seed}"
+    print(f"[{label}] started", flush=True)
+    log_folder = zoo_folder / algo
     log_folder.mkdir(parents=True, exist_ok=True)
-    times_path = log_folder / "segment_times.json"
+    times_path = log_folder / f"segment_times{'' if task is None else '_' + task}.json"
     times: dict[str, list[float]] = read_json(times_path) or {}
     from rl_zoo3.utils import get_latest_run_id
 
-    run = Run.read(log_folder, TRAIN_ENV)
+    from sb3_cql.zoo.plugin import hyperparams_dir
+
+    run = Run.read(log_folder, env_id, outside_start=task is not None)
     while not run.is_complete():
-        segment = f"{TRAIN_ENV}_{get_latest_run_id(str(log_folder), TRAIN_ENV) + 1}"  # the folder the zoo will make
-        command = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", TRAIN_ENV, "--seed", str(seed),
-                   "-f", str(run_dir), "-tb", str(run.tensorboard_folder(segment)),
+        segment = f"{env_id}_{get_latest_run_id(str(log_folder), env_id) + 1}"  # the folder the zoo will make
+        command = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", env_id, "--seed", str(seed),
+                   "-f", str(zoo_folder), "-tb", str(run.tensorboard_folder(segment)),
                    "--save-freq", str(protocol.save_freq)]  # fmt: skip
         if threads is not None:
             command += ["--num-threads", str(threads)]
@@ -222,12 +253,17 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
             command += ["--eval-episodes", str(settings.eval_episodes)]
         latest = run.latest_model()
         if latest is None:
+            if start_model is not None:
+                command += ["-i", str(start_model)]
             if settings.n_timesteps is not None:
                 command += ["-n", str(settings.n_timesteps)]
         else:
             assert run.n_timesteps is not None
             command += ["-i", str(latest[1]), "-n", str(run.n_timesteps - latest[0])]
-        command += settings.dataset_args(_config_dataset(algo, settings))
+        if task is None:
+            command += settings.dataset_args(_config_dataset(algo, settings))
+        else:
+            command += ["--conf-file", str(hyperparams_dir() / FINETUNE_CONFIG), *settings.finetune_args]
         start = time.time()
         times[segment] = [start, start]
         write_json(times_path, times)
@@ -239,16 +275,18 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
         times[segment] = [start, time.time()]
         write_json(times_path, times)
         if returncode != 0:
-            raise BenchmarkError(f"{algo} seed {seed}: the zoo failed (exit {returncode}); end of {log}:\n{_log_tail(log)}")
-        run = Run.read(log_folder, TRAIN_ENV)
+            raise BenchmarkError(f"{label}: the zoo failed (exit {returncode}); end of {log}:\n{_log_tail(log)}")
+        run = Run.read(log_folder, env_id, outside_start=task is not None)
         progress = run.latest_model()
         if progress is None or (latest is not None and progress[0] <= latest[0]):
-            raise BenchmarkError(f"{algo} seed {seed}: segment {segment} saved no progress; end of {log}:\n{_log_tail(log)}")
+            raise BenchmarkError(f"{label}: segment {segment} saved no progress; end of {log}:\n{_log_tail(log)}")
     best_step, best_rate, best_path = run.best_model()
     record = {
-        "algo": algo,
+        "algo": row,
         "seed": seed,
-        "train_env": TRAIN_ENV,
+        "train_env": env_id,
+        "log_folder": str(log_folder.relative_to(results.root)),
+        "started_from": None if start_model is None else str(start_model.relative_to(results.root)),
         "training_steps": run.n_timesteps,
         "n_timesteps_override": settings.n_timesteps,
         "best_step": best_step,
@@ -260,7 +298,7 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None) -> dict
         ],
         "train_wall_time_s": round(_wall_time(run, times), 1),
     }
-    write_json(results.training_record(algo, seed), record)
+    write_json(results.training_record(row, seed), record)
     return record
 
 
@@ -288,8 +326,8 @@ def _wall_time(run: Run, times: dict[str, list[float]]) -> float:
 
 
 def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int | None) -> dict[str, Any]:
-    """Success rate of ``algo``'s best model of ``seed`` (or the PD controller) over the final evaluation's episodes of
-    ``task``, seeded with ``seed``; record and return it."""
+    """Success rate of ``algo``'s best model of ``seed`` (or the PD controller; ``algo`` may be a fine-tuned row) over
+    the final evaluation's episodes of ``task``, seeded with ``seed``; record and return it."""
     from sb3_cql.evaluate import load_policy, success_rate
 
     if threads is not None:
@@ -304,7 +342,8 @@ def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int |
     if training is None:  # a PD controller, in the tasks' default (absolute) action mode
         policy, env_kwargs = load_policy(algo, None, task), {}
     else:  # in the envs it was trained in (its action mode)
-        policy, env_kwargs = load_policy(str(results.root / training["best_model"]), algo, task), training["env_kwargs"]
+        model = str(results.root / training["best_model"])
+        policy, env_kwargs = load_policy(model, finetune_parts(algo)[0], task), training["env_kwargs"]
     rate = success_rate(policy, task, settings.episodes, seed, env_kwargs=env_kwargs)
     record = {
         "algo": algo,
@@ -372,6 +411,18 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                         units.append((name, evaluate, (protocol, algo, seed, task, threads)))
                 return units
 
+            def finetunings(algo: str, seed: int) -> list[Unit]:
+                units = []
+                for task in protocol.finetune if fine_tunes(algo) else []:
+                    row = FINETUNE_ROW.format(algo=algo, task=task)
+                    if results.training_record(row, seed).is_file():
+                        counts["skipped"] += 1
+                        print(f"[finetune {algo} seed {seed} {task}] skipped: recorded", flush=True)
+                        units += evaluations(row, seed)
+                    else:
+                        units.append((("finetune", algo, f"seed {seed}", task), train, (protocol, algo, seed, threads, task)))
+                return units
+
             def submit() -> None:
                 while waiting and len(pending) < protocol.workers:
                     name, function, arguments = waiting.popleft()
@@ -384,6 +435,8 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                             counts["skipped"] += 1
                             print(f"[train {algo} seed {seed}] skipped: recorded", flush=True)
                         waiting.extend(evaluations(algo, seed))
+                        if algo not in SCRIPTED:
+                            waiting.extend(finetunings(algo, seed))
                     else:
                         print(f"[train {algo} seed {seed}] queued, log {results.training_log(algo, seed)}", flush=True)
                         waiting.append((("train", algo, f"seed {seed}"), train, (protocol, algo, seed, threads)))
@@ -401,13 +454,16 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                         continue
                     counts["done"] += 1
                     record = future.result()
-                    if name[0] == "train":
+                    if name[0] in ("train", "finetune"):
                         rate = record["best_eval_success_rate"]
                         best = "no evaluation" if rate is None else f"best evaluation {rate:.3f}"
                         wall = _seconds(record["train_wall_time_s"])
                         print(f"{label} done: {record['training_steps']} steps in {len(record['segments'])} segment(s), "
                               f"{best} at step {record['best_step']}, {wall}", flush=True)  # fmt: skip
-                        waiting.extendleft(reversed(evaluations(record["algo"], record["seed"])))
+                        then = evaluations(record["algo"], record["seed"])
+                        if name[0] == "train":
+                            then += finetunings(record["algo"], record["seed"])
+                        waiting.extendleft(reversed(then))
                     else:
                         print(f"{label} success rate {record['success_rate']:.3f} over {record['episodes']} episodes, "
                               f"{_seconds(record['eval_wall_time_s'])}", flush=True)  # fmt: skip

@@ -4,7 +4,8 @@ A run (one algorithm, one seed) lives in a zoo log folder ``<run dir>/<algo>/``.
 ``Panda-v0_<N>``: the first trains from scratch; a resumed one was started with ``-i <checkpoint>`` and restarts
 the zoo's step count at 0, so its steps are offset by the checkpoint's. A later segment that resumed from global
 step ``g`` discards whatever earlier segments did after ``g``: the run's history is everything up to each
-segment's cut. Everything here is read back from the zoo's own files (``args.yml``, ``config.yml``,
+segment's cut. A fine-tuning run's first segment starts (``-i``) from a model outside the run, at step 0.
+Everything here is read back from the zoo's own files (``args.yml``, ``config.yml``,
 ``evaluations.npz``, the models' ``num_timesteps``), so a run killed at any moment, even while writing a file, is
 read correctly: an unreadable file counts as absent.
 """
@@ -103,8 +104,9 @@ class Run:
     segments: list[Segment] = field(default_factory=list)
 
     @classmethod
-    def read(cls, log_folder: Path, env_id: str) -> Run:
-        """Read every segment that got as far as writing its configuration (earlier deaths left nothing to use)."""
+    def read(cls, log_folder: Path, env_id: str, outside_start: bool = False) -> Run:
+        """Read every segment that got as far as writing its configuration (earlier deaths left nothing to use).
+        ``outside_start``: the first segment continued a model from elsewhere (fine-tuning), and starts at step 0."""
         run = cls(log_folder, env_id)
         numbered = []
         for folder in log_folder.glob(f"{env_id}_*"):
@@ -120,7 +122,7 @@ class Run:
             env_kwargs = dict(args.get("env_kwargs") or config.get("env_kwargs") or {})
             segment = Segment(folder, number, n_timesteps, env_kwargs=env_kwargs)
             source = args.get("trained_agent") or ""
-            if source:
+            if source and not (outside_start and not run.segments):
                 # The checkpoint's folder and file name only, so that a results folder can be moved.
                 source_path = Path(source)
                 parent = by_name.get(source_path.parent.name)
