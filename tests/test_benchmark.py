@@ -119,6 +119,8 @@ def test_clear_errors(bench, quick):
     assert "dataset sb3cql/Panda-v0/nothing-here-v0 not found" in missing
     missing = one_line_error("--algos", "cql", "--results-dir", "errors", "--dataset", "sb3cql/Panda-v0/nothing-here-v0")
     assert "dataset sb3cql/Panda-v0/nothing-here-v0 not found" in missing
+    assert "none of --algos bc pid fine-tunes online (cql does)" in one_line_error(
+        "--algos", "bc", "pid", "--finetune", "PandaForce-v0", "--results-dir", "errors")  # fmt: skip
     assert not (bench.root / "errors" / "runs").exists()  # refused before any work
 
 
