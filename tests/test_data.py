@@ -155,6 +155,33 @@ def test_interrupted_collection_keeps_its_episodes_says_so_and_resumes(monkeypat
     assert_same_data(resumed, collect_dataset(spec, "sb3cql/Panda-v0/fresh-v0", progress_bar=False))
 
 
+def test_ctrl_c_that_python_drops_in_a_destructor_still_stops_the_collection(monkeypatch, capsys):
+    """A Ctrl-C arriving while a ``__del__`` runs (a garbage-collected PyBullet client disconnecting) raises its
+    KeyboardInterrupt there, where Python drops it: the collection stops after the episode anyway."""
+    run_episode = collection_module._run_episode
+
+    class Disconnecting:
+        def __del__(self):
+            signal.raise_signal(signal.SIGINT)  # Ctrl-C now: its KeyboardInterrupt is raised in this __del__,
+            for _ in range(3):  # at the loop's first jump back
+                pass
+
+    def episode_with_a_collection(index):
+        result = run_episode(index)
+        if index == 1:
+            Disconnecting()  # dropped at once: its __del__ runs here
+        return result
+
+    dropped = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda unraisable: dropped.append(unraisable.exc_type))
+    monkeypatch.setattr(collection_module, "_run_episode", episode_with_a_collection)
+    with pytest.raises(KeyboardInterrupt):
+        collect_dataset(CollectionSpec(policy="random", n_episodes=4), progress_bar=False)
+    assert dropped == [KeyboardInterrupt]  # Python did drop it
+    last_line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last_line == "interrupted: 2 of 4 episodes of sb3cql/Panda-v0/random-v0 kept; the same command resumes"
+
+
 def test_another_collection_does_not_resume_a_partial_one(monkeypatch):
     run_episode = interrupt_collection_at(monkeypatch, 1, [])
     with pytest.raises(KeyboardInterrupt):

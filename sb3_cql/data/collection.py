@@ -277,6 +277,29 @@ def _sigint_blocked() -> Iterator[None]:
 
 
 @contextlib.contextmanager
+def _sigint_noted() -> Iterator[Callable[[], bool]]:
+    """Raise ``KeyboardInterrupt`` on Ctrl-C as the handler there was does, and note it: the block gets a function
+    telling whether one came. Python drops an exception raised in a ``__del__`` (PyBullet's ``BulletClient``
+    disconnects in one, which a garbage collection can run at any moment), so a loop that checks the note still
+    stops. Only the main thread receives signals; elsewhere, or with Ctrl-C ignored, nothing is noted."""
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield lambda: False
+        return
+    noted: list[bool] = []
+
+    def note(signum: int, frame: Any) -> None:
+        noted.append(True)
+        previous(signum, frame)
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield lambda: bool(noted)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
 def _sigint_deferred(reraise: bool = True) -> Iterator[None]:
     """Hold a Ctrl-C (SIGINT) back until the block is done, so that a write to the dataset is never cut in half, then
     raise ``KeyboardInterrupt`` (or call the handler there was) if one came and ``reraise``. Only the main thread
@@ -361,7 +384,9 @@ def _open_partial(partial: Path, spec: CollectionSpec, env: gym.Env) -> tuple[Mi
             pass
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
-    storage = MinariStorage.new(partial / "data", env_spec=env.spec, data_format="hdf5")
+    # With the spaces given, Minari makes no env of its own to read them (one it would drop at once: a PyBullet
+    # client's __del__, which drops a Ctrl-C that arrives while it disconnects).
+    storage = MinariStorage.new(partial / "data", env.observation_space, env.action_space, env.spec, data_format="hdf5")
     spec_file.write_text(spec.to_json())
     return storage, []
 
@@ -415,6 +440,7 @@ def collect_dataset(
         print(_plan(spec, dataset_id, workers, start), file=sys.stderr, flush=True)
         steps, begin = 0, time.perf_counter()
         with (
+            _sigint_noted() as interrupted,
             contextlib.closing(_episodes(spec, start, workers)) as episodes,
             tqdm(total=spec.n_episodes, initial=start, desc=dataset_id, unit="ep", disable=not progress_bar) as bar,
         ):
@@ -427,7 +453,11 @@ def collect_dataset(
                 bar.set_postfix(transitions_per_s=f"{rate:.0f}", success_rate=f"{np.mean(successes):.3f}")
                 if len(pending) >= write_every:
                     _write(storage, pending)
+                if interrupted():  # a Ctrl-C whose KeyboardInterrupt Python dropped
+                    raise KeyboardInterrupt
             _write(storage, pending)
+            if interrupted():
+                raise KeyboardInterrupt
         with _sigint_deferred():
             storage.update_metadata(_metadata(dataset_id, spec, successes, env))
             (partial / SPEC_FILE).unlink()
