@@ -70,7 +70,7 @@ def test_samples_carry_the_returns_to_go_of_their_states():
         add(buffer, reward, done=step == 2, value=step / 10)
     samples = buffer.sample(32)
     expected = {0.0: 0.25, 0.1: 0.5, 0.2: 1.0}
-    for observation, value in zip(samples.observations[:, 0].tolist(), samples.returns_to_go[:, 0].tolist()):
+    for observation, value in zip(samples.observations[:, 0].tolist(), samples.returns_to_go[:, 0].tolist(), strict=True):
         assert value == pytest.approx(expected[round(observation, 1)])
     assert isinstance(samples.returns_to_go, th.Tensor) and samples.dones.shape == (32, 1)
 

@@ -130,7 +130,8 @@ def test_fine_tuning_online_checkpoints_its_transitions_and_continues_from_them(
     (events,) = (zoo.root / "tb" / "PandaForce-v0").glob("CQL_1/events.out.tfevents.*")
     assert "eval/success_rate" in EventAccumulator(str(events)).Reload().Tags()["scalars"]
     assert (run / "rl_model_replay_buffer_150_steps.pkl").is_file()
-    online_size = "from sb3_cql import CQL; m = CQL.load('{}'); m.load_replay_buffer('{}'); print(m.replay_buffer.online.size())"
+    online_size = ("from sb3_cql import CQL; m = CQL.load('{}'); m.load_replay_buffer('{}'); "
+                   "print(m.replay_buffer.online.size())")  # fmt: skip
     # A checkpoint is saved before its step's transition is stored.
     assert zoo.python(online_size.format(run / "PandaForce-v0.zip", run / "rl_model_replay_buffer_300_steps.pkl")) == "299"
 
@@ -145,8 +146,8 @@ def test_fine_tuning_online_checkpoints_its_transitions_and_continues_from_them(
                               capture_output=True, text=True)  # fmt: skip
     assert mismatch.returncode == 2 and "Traceback" not in mismatch.stderr
     assert mismatch.stderr.strip().splitlines()[-1].startswith(
-        f"python -m rl_zoo3.train: error: {trained / 'Panda-v0.zip'} does not fit PandaForce-v0 {{'action_mode': 'absolute'}}: "
-        "Action spaces do not match"
+        f"python -m rl_zoo3.train: error: {trained / 'Panda-v0.zip'} does not fit PandaForce-v0 "
+        "{'action_mode': 'absolute'}: Action spaces do not match"
     )
     assert not (zoo.root / "finetune" / "cql" / "PandaForce-v0_3").exists()
 

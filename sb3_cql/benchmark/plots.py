@@ -55,7 +55,9 @@ def _runs(results: ResultsFolder, training: list[dict[str, Any]], finetuned: boo
     for record in training:
         if bool(record.get("started_from")) != finetuned:
             continue
-        folder = results.root / record["log_folder"] if record.get("log_folder") else results.run_dir(record["seed"]) / record["algo"]
+        folder = results.run_dir(record["seed"]) / record["algo"]  # records made before log_folder was kept
+        if record.get("log_folder"):
+            folder = results.root / record["log_folder"]
         runs.setdefault(record["algo"], []).append(Run.read(folder, record["train_env"], outside_start=finetuned))
     return {algo: runs[algo] for algo in algo_order(runs)}
 
@@ -92,9 +94,10 @@ def finetune_success(runs: dict[str, list[Run]], summary: dict[str, dict[str, An
         if series:
             steps, curves = _on_common_steps(series)
             _band(axis, steps, curves, row_label(row))
-            start = summary.get(finetune_parts(row)[0], {}).get(task)
+            base = finetune_parts(row)[0]
+            start = summary.get(base, {}).get(task)
             if start is not None:
-                axis.axhline(start["mean"], color="gray", linestyle=":", label=f"start: {finetune_parts(row)[0].upper()} (final evaluation)")
+                axis.axhline(start["mean"], color="gray", linestyle=":", label=f"start: {base.upper()} (final evaluation)")
     teacher = summary.get("pid-regrasp", {}).get(task)
     if teacher is not None:
         axis.axhline(teacher["mean"], color="black", linestyle="--", label="PID-REGRASP (final evaluation)")

@@ -215,7 +215,7 @@ class MixedReplayBuffer(ReplayBuffer):
         parts = [part.sample(n, env) for part, n in ((self.offline, batch_size - n_online), (self.online, n_online)) if n]
         if len(parts) == 1:
             return parts[0]
-        return type(parts[0])(*(None if fields[0] is None else th.cat(fields) for fields in zip(*parts)))
+        return type(parts[0])(*(None if fields[0] is None else th.cat(fields) for fields in zip(*parts, strict=True)))
 
     def start_new_episodes(self) -> None:
         """See :meth:`ReturnToGoReplayBuffer.start_new_episodes` (nothing for a plain online part)."""
@@ -235,7 +235,7 @@ class MixedReplayBuffer(ReplayBuffer):
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         online_class, online, trimmed = state["online"]
-        for key in trimmed:
+        for key in trimmed:  # back to the capacity, the rows past the filled ones as a new buffer's
             value = online[key]
             full = np.full((online["buffer_size"], *value.shape[1:]), -np.inf if key == "returns_to_go" else 0,
                            dtype=value.dtype)  # fmt: skip

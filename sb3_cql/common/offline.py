@@ -191,8 +191,10 @@ class OfflineSAC(SAC):
             self._fill_from_dataset(self.dataset)
         if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
             size = 0 if self.replay_buffer is None else self.replay_buffer.size()
-            hint = "" if isinstance(self.dataset, str) else " (a loaded model reloads its data from a dataset id; this one has none)"
-            raise ValueError(f"training needs batch_size={self.batch_size} offline transitions or more, the buffer has {size}{hint}")
+            hint = "" if isinstance(self.dataset, str) else " (a loaded model reloads them from its dataset id; none here)"
+            raise ValueError(
+                f"training needs batch_size={self.batch_size} offline transitions or more, the buffer has {size}{hint}"
+            )
 
     def _prepare_online_buffer(self, reset_num_timesteps: bool) -> None:
         """Make the replay buffer a :class:`MixedReplayBuffer`: the offline data (the buffer's, or reloaded from the

@@ -89,10 +89,10 @@ def _our_config(config: str) -> str:
 
 def _checkpoint_buffer(model_path: Path) -> Path | None:
     """The replay buffer saved with a checkpoint ``rl_model_<N>_steps.zip`` (SB3's ``CheckpointCallback``), if any."""
-    prefix, steps = model_path.stem.rsplit("_", 2)[0], model_path.stem.rsplit("_", 2)[-2:]
-    if steps[-1] != "steps" or not steps[0].isdigit():
+    parts = model_path.stem.rsplit("_", 2)  # rl_model, <N>, steps
+    if len(parts) != 3 or parts[2] != "steps" or not parts[1].isdigit():
         return None
-    path = model_path.with_name(f"{prefix}_replay_buffer_{steps[0]}_steps.pkl")
+    path = model_path.with_name(f"{parts[0]}_replay_buffer_{parts[1]}_steps.pkl")
     return path if path.is_file() else None
 
 
