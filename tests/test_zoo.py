@@ -39,8 +39,18 @@ class Zoo:
 @pytest.fixture(scope="module")
 def zoo(tmp_path_factory) -> Zoo:
     zoo = Zoo(tmp_path_factory.mktemp("zoo"))
-    zoo.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4",
-             "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0", module="sb3_cql.data")
+    zoo.run(
+        "collect",
+        "--policy",
+        "noisy-regrasp",
+        "--action-mode",
+        "delta",
+        "--episodes",
+        "4",
+        "--dataset-id",
+        "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0",
+        module="sb3_cql.data",
+    )
     return zoo
 
 
@@ -145,9 +155,13 @@ def test_fine_tuning_online_checkpoints_its_transitions_and_continues_from_them(
                                "--env-kwargs", "action_mode:'absolute'"], cwd=zoo.root, env=zoo.env,
                               capture_output=True, text=True)  # fmt: skip
     assert mismatch.returncode == 2 and "Traceback" not in mismatch.stderr
-    assert mismatch.stderr.strip().splitlines()[-1].startswith(
-        f"python -m rl_zoo3.train: error: {trained / 'Panda-v0.zip'} does not fit PandaForce-v0 "
-        "{'action_mode': 'absolute'}: Action spaces do not match"
+    assert (
+        mismatch.stderr.strip()
+        .splitlines()[-1]
+        .startswith(
+            f"python -m rl_zoo3.train: error: {trained / 'Panda-v0.zip'} does not fit PandaForce-v0 "
+            "{'action_mode': 'absolute'}: Action spaces do not match"
+        )
     )
     assert not (zoo.root / "finetune" / "cql" / "PandaForce-v0_3").exists()
 

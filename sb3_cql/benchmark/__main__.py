@@ -54,8 +54,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-freq", type=int, default=None, help="steps between checkpoints (default 10,000)")
     parser.add_argument("--dataset", default=None, help="dataset of the offline algorithms (default: configs')")
     parser.add_argument("--zoo-args", default="", help='more rl_zoo3.train arguments, e.g. "--hyperparams batch_size:64"')
-    parser.add_argument("--finetune", nargs="+", default=[], choices=list(envs.ENV_IDS), metavar="TASK",
-                        help="fine-tune each seed's best CQL model online on these tasks: rows of their own")
+    parser.add_argument(
+        "--finetune",
+        nargs="+",
+        default=[],
+        choices=list(envs.ENV_IDS),
+        metavar="TASK",
+        help="fine-tune each seed's best CQL model online on these tasks: rows of their own",
+    )
     parser.add_argument("--finetune-args", default="", help="more rl_zoo3.train arguments of the fine-tuning runs, "
                         'e.g. "--hyperparams cql_alpha:0.0" (SAC fine-tuning)')  # fmt: skip
     parser.add_argument("--report-only", action="store_true", help="only make the table and figures from results/")
