@@ -10,6 +10,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.logger import Logger, configure
+from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
 from sb3_cql import CQL
@@ -284,6 +285,27 @@ def test_online_fine_tuning_keeps_the_offline_data_and_continues_from_its_saved_
     loaded.learn(100)
     assert loaded.replay_buffer.online.size() == 550 and loaded.online_fraction == 0.5
     assert np.isfinite(loaded.replay_buffer.online.returns_to_go[400:550, 0]).sum() == 0  # the cut episode: no bound
+
+
+def test_deterministic_rollouts_act_with_the_deterministic_action_plus_the_action_noise():
+    """SAC acts with a sample of its policy; with ``deterministic_rollouts`` fine-tuning acts as TD3 does: the
+    deterministic action, plus ``action_noise``. (No gradient steps: the policy stays the one that acted.)"""
+    offline, env = random_pendulum_buffer(400), gym.make("Pendulum-v1")  # actions in [-2, 2], stored scaled to [-1, 1]
+
+    def acted_minus_deterministic(**kwargs) -> np.ndarray:
+        model = CQL("MlpPolicy", env, dataset=offline, batch_size=32, policy_kwargs=TINY, online_fraction=0.5,
+                    online_buffer_size=1_000, gradient_steps=0, seed=0, **kwargs)  # fmt: skip
+        model.learn(100)
+        online = model.replay_buffer.online
+        assert online.size() == 100
+        deterministic, _ = model.predict(online.observations[:100, 0], deterministic=True)
+        return online.actions[:100, 0] - model.policy.scale_action(deterministic)
+
+    np.testing.assert_allclose(acted_minus_deterministic(deterministic_rollouts=True), 0.0, atol=1e-6)
+    noise = NormalActionNoise(mean=np.zeros(1), sigma=np.full(1, 0.1))
+    noisy = acted_minus_deterministic(deterministic_rollouts=True, action_noise=noise)
+    assert 0.07 < noisy.std() < 0.13 and abs(noisy.mean()) < 0.03  # N(0, 0.1) around the deterministic action
+    assert np.abs(acted_minus_deterministic()).mean() > 0.2  # SAC's samples of the untrained policy (std ~1)
 
 
 def test_a_model_trained_offline_fine_tunes_after_load_with_an_online_fraction(tmp_path, monkeypatch):

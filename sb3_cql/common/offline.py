@@ -9,10 +9,12 @@ import time
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
+import numpy as np
 import torch as th
 from minari import MinariDataset
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule
@@ -62,7 +64,11 @@ class OfflineSAC(SAC):
         from the online transitions (RLPD's symmetric sampling: 0.5).
     :param online_buffer_size: capacity of the online transitions when fine-tuning.
     :param learning_starts: env steps of random actions before training starts, when fine-tuning (SAC's).
-    :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``policy_kwargs``, ``seed``, ...).
+    :param deterministic_rollouts: when fine-tuning, act with the policy's deterministic action plus ``action_noise``
+        (TD3's exploration; SB3's ``NormalActionNoise``, or the zoo's ``noise_type``/``noise_std``) instead of a sample
+        of the policy (SAC's). A clone's samples rarely hold a grasp where its deterministic action does
+        (the documentation's *What we learned* page, *How a fine-tuned policy explores*).
+    :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``action_noise``, ``seed``, ...).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -83,6 +89,7 @@ class OfflineSAC(SAC):
         online_fraction: float | None = None,
         online_buffer_size: int = 1_000_000,
         learning_starts: int = 0,
+        deterministic_rollouts: bool = False,
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
@@ -91,6 +98,7 @@ class OfflineSAC(SAC):
         self.dataset = dataset
         self.online_fraction = online_fraction
         self.online_buffer_size = online_buffer_size
+        self.deterministic_rollouts = deterministic_rollouts
         self.actor_learning_rate = actor_learning_rate
         self.normalize_observations = normalize_observations
         self._fill_on_setup = True  # load() turns it off: a loaded model does not reload its data
@@ -183,6 +191,21 @@ class OfflineSAC(SAC):
                 self._dump_offline_logs()
         callback.on_training_end()
         return self
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """SAC's exploration (a sample of the policy, plus ``action_noise`` if any), or with ``deterministic_rollouts``
+        TD3's: the deterministic action plus ``action_noise``, clipped to the action space (after ``learning_starts``;
+        the random warm-up stays SB3's)."""
+        if not self.deterministic_rollouts or self.num_timesteps < learning_starts:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        assert self._last_obs is not None
+        action, _ = self.predict(self._last_obs, deterministic=True)
+        scaled_action = self.policy.scale_action(action)
+        if action_noise is not None:
+            scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+        return self.policy.unscale_action(scaled_action), scaled_action
 
     def _ensure_offline_data(self) -> None:
         """Refill a loaded model's buffer from its dataset id; refuse a buffer smaller than one batch."""

@@ -9,6 +9,7 @@ import numpy as np
 import torch as th
 from minari import MinariDataset
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
@@ -104,6 +105,9 @@ class CQL(OfflineSAC):
         0 keeps the trained policy acting from the first step).
     :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
     :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's; ``-1``: as many as env steps).
+    :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``, as SAC's and TD3's).
+    :param deterministic_rollouts: when fine-tuning, act with the deterministic action plus ``action_noise`` (TD3's
+        exploration) instead of a sample of the policy (SAC's).
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
     :param verbose: 0 silent, 1 training logs, 2 debug.
@@ -144,6 +148,8 @@ class CQL(OfflineSAC):
         learning_starts: int = 0,
         train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        deterministic_rollouts: bool = False,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
@@ -178,6 +184,8 @@ class CQL(OfflineSAC):
             online_fraction=online_fraction,
             online_buffer_size=online_buffer_size,
             learning_starts=learning_starts,
+            action_noise=action_noise,
+            deterministic_rollouts=deterministic_rollouts,
             policy_kwargs=policy_kwargs,
             batch_size=batch_size,
             train_freq=train_freq,
