@@ -1,7 +1,7 @@
 """The experiment scripts in experiments/: each run end to end as a subprocess on a tiny dataset and clone, their
 command lines, and the backup variants of cql_from_clone.py.
 
-The five script runs start together, once per module (each is mostly start-up time), and the tests check their
+The six script runs start together, once per module (each is mostly start-up time), and the tests check their
 results.
 """
 
@@ -25,7 +25,7 @@ from sb3_cql import BC, CQL
 from sb3_cql.data import CollectionSpec, collect_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ("action_drift", "bc_continued", "cql_from_clone", "gripper_reopenings", "q_probe")
+SCRIPTS = ("acting_noise", "action_drift", "bc_continued", "cql_from_clone", "gripper_reopenings", "q_probe")
 DATASET = "sb3cql/Panda-v0/tiny-regrasp-delta-v0"
 TINY = {"batch_size": 16, "bc_steps": 1, "policy_kwargs": {"net_arch": [32]}}
 ACTION_DIM = 9
@@ -64,6 +64,7 @@ def commands(root: Path) -> dict[str, list[str]]:
     """Each script's tiny run: a few gradient steps, one evaluation episode, logs in ``root``."""
     bc, tiny = str(root / "bc.zip"), json.dumps(TINY)
     return {
+        "acting_noise": [bc, "--algo", "bc", "--env", "Panda-v0", "--seeds", "0", "--modes", "mean", "sample", "normal:0.1"],
         "action_drift": [bc, "--dataset-id", DATASET, "--kwargs", tiny, "--every", "1", "--probes", "2",
                          "--probe-states", "64", "--log-dir", str(root / "action_drift")],
         "bc_continued": [bc, "1", "2", "1e-3", "16", DATASET, "--eval-episodes", "1", "--log-dir", str(root / "bc_continued")],
@@ -96,6 +97,34 @@ def succeeded(runs, name: str) -> list[str]:
     result = runs[name]
     assert result.returncode == 0, result.stderr[-3000:]
     return [line for line in result.stdout.splitlines() if line != "argv[0]="]
+
+
+def test_acting_noise_prints_success_per_mode_and_the_samples_statistics(runs):
+    lines = succeeded(runs, "acting_noise")
+    per_dimension = rf"\[{FLOAT}(?: {FLOAT}){{{ACTION_DIM - 1}}}\]"
+    expected = [
+        r"mean: success [01]\.000 \([01]/1\)",
+        r"sample: success [01]\.000 \([01]/1\)",
+        rf"  std before tanh {per_dimension}",
+        rf"  \|sample - mean\| {per_dimension}",
+        rf"  finger sign flips \[{FLOAT} {FLOAT}\]",
+        r"normal:0\.1: success [01]\.000 \([01]/1\)",
+    ]
+    assert len(lines) == len(expected), lines
+    for line, pattern in zip(lines, expected, strict=True):
+        assert re.fullmatch(pattern, line), line
+
+
+def test_acting_noise_modes_give_sb3_action_noise():
+    make_noise = load_script("acting_noise").make_noise
+    assert make_noise("mean", 3) is None and make_noise("sample", 3) is None
+    noise = make_noise("normal:0.5", 3)
+    np.random.seed(0)
+    draws = np.array([noise() for _ in range(2000)])
+    assert draws.shape == (2000, 3) and abs(draws.std() - 0.5) < 0.05  # N(0, 0.5) per dimension
+    correlated = make_noise("ou:0.5", 3)
+    steps = np.array([correlated() for _ in range(200)])
+    assert np.corrcoef(steps[:-1, 0], steps[1:, 0])[0, 1] > 0.5  # Ornstein-Uhlenbeck: correlated in time
 
 
 def test_action_drift_prints_gradients_and_shifts(runs, inputs):
@@ -170,6 +199,8 @@ def test_help_shows_the_usage(name, capsys):
         ("q_probe", ["10", "[16]"], "argument KWARGS_JSON: must be a JSON object"),
         ("action_drift", ["bc.zip", "--kwargs", '{"seed": 2}'], "argument --kwargs: not CQL keywords: seed"),
         ("gripper_reopenings", [], "the following arguments are required: DATASET_ID"),
+        ("acting_noise", ["bc.zip", "--modes", "normal"], "argument --modes: unknown mode 'normal'"),
+        ("acting_noise", ["bc.zip", "--seeds", "9-1"], "argument --seeds: '9-1' is an empty range"),
     ],
 )
 def test_a_bad_argument_is_a_usage_error(name, args, message, capsys):
