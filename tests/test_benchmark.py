@@ -3,6 +3,7 @@
 import contextlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -40,8 +41,18 @@ class Bench:
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory) -> Bench:
     bench = Bench(tmp_path_factory.mktemp("bench"))
-    bench.run("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4",
-             "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0", module="sb3_cql.data")
+    bench.run(
+        "collect",
+        "--policy",
+        "noisy-regrasp",
+        "--action-mode",
+        "delta",
+        "--episodes",
+        "4",
+        "--dataset-id",
+        "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0",
+        module="sb3_cql.data",
+    )
     return bench
 
 
@@ -101,6 +112,19 @@ def test_a_second_run_does_no_work_and_report_only_remakes_the_outputs(bench, qu
     (results / "table.md").unlink()
     bench.run("--report-only", "--results-dir", "quick", "--no-filmstrips")
     assert "| CQL |" in (results / "table.md").read_text()
+
+
+def test_report_only_leaves_out_of_the_filmstrips_a_model_not_on_disk(bench, quick):
+    results, _ = quick
+    copy = bench.root / "without-sac-model"
+    shutil.copytree(results, copy)
+    record = json.loads((copy / "records" / "train" / "sac-seed117.json").read_text())
+    (copy / record["best_model"]).unlink()  # as in a clone: models are not committed with the records
+    started = time.time()
+    output = bench.run("--report-only", "--results-dir", "without-sac-model").stdout
+    assert f"filmstrips: sac left out, its model {copy / record['best_model']} is not on disk" in output
+    for task in TASKS:  # made again, with the other policies
+        assert (copy / "figures" / f"filmstrip_{task}.png").stat().st_mtime >= started - 1
 
 
 def test_clear_errors(bench, quick):

@@ -224,6 +224,11 @@ def make_figures(results: ResultsFolder, report: dict[str, Any], filmstrips: boo
         first_runs = {}
         for record in sorted(training, key=lambda r: r["seed"]):
             first_runs.setdefault(record["algo"], record)
+        for algo, record in list(first_runs.items()):
+            if not (results.root / record["best_model"]).is_file():  # models are not kept with the records
+                print(f"filmstrips: {algo} left out, its model {results.root / record['best_model']} is not on disk",
+                      flush=True)  # fmt: skip
+                del first_runs[algo]
         for task in tasks:
             policies = {}
             for algo in algo_order([*first_runs, *summary]):
