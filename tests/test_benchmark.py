@@ -309,6 +309,12 @@ def test_a_run_started_from_an_outside_model_begins_at_step_0_and_resumes_from_i
         (0, 100, None), (100, None, "Pendulum-v1_1/rl_model_100_steps.zip")]  # fmt: skip
     assert run.n_timesteps == 300 and run.latest_model() == (150, tmp_path / "cql" / "Pendulum-v1_2" / "rl_model_50_steps.zip")
 
+    for model_file in (tmp_path / "cql").rglob("*.zip"):  # a clone of the results: records and logs, no models
+        model_file.unlink()
+    run = Run.read(tmp_path / "cql", "Pendulum-v1", outside_start=True)
+    assert [(s.offset, s.cut) for s in run.segments] == [(0, 100), (100, None)]  # the checkpoint's step from its name
+    assert run.latest_model() is None
+
 
 def test_fine_tuning_is_a_stage_of_its_own_rows_after_the_offline_training(bench, quick):
     results, _ = quick

@@ -38,6 +38,13 @@ def model_timesteps(path: Path) -> int | None:
         return None
 
 
+def checkpoint_timesteps(path: Path) -> int | None:
+    """The step in the name of a zoo checkpoint ``rl_model_<N>_steps.zip`` (SB3's ``CheckpointCallback``), else
+    ``None``."""
+    parts = path.stem.rsplit("_", 2)  # rl_model, <N>, steps
+    return int(parts[1]) if len(parts) == 3 and parts[2] == "steps" and parts[1].isdigit() else None
+
+
 def _load_yaml(path: Path) -> dict | None:
     try:
         return dict(yaml.unsafe_load(path.read_text()) or {})  # the zoo dumps OrderedDicts
@@ -126,7 +133,9 @@ class Run:
                 # The checkpoint's folder and file name only, so that a results folder can be moved.
                 source_path = Path(source)
                 parent = by_name.get(source_path.parent.name)
-                step = model_timesteps(log_folder / source_path.parent.name / source_path.name)
+                model = log_folder / source_path.parent.name / source_path.name
+                # A checkpoint no longer on disk (models are not kept with a results folder's records): its name's step.
+                step = model_timesteps(model) if model.is_file() else checkpoint_timesteps(model)
                 if parent is None or step is None:
                     raise RuntimeError(f"{folder} resumed from {source}, which is not a model of this run")
                 segment.offset, segment.resumed_from = parent.offset + step, f"{source_path.parent.name}/{source_path.name}"
