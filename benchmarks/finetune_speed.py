@@ -25,6 +25,7 @@ import yaml
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.noise import NormalActionNoise
 
 import envs  # noqa: F401  (registers the tasks)
 from sb3_cql import CQL
@@ -33,7 +34,7 @@ from sb3_cql.zoo.plugin import hyperparams_dir
 N_OFFLINE = 20_000
 #: Keys of the zoo configs that are not CQL's keywords.
 ZOO_ONLY = {"policy", "dataset", "env_kwargs", "n_timesteps", "monitor_kwargs", "eval_freq", "n_eval_episodes",
-            "save_freq"}  # fmt: skip
+            "save_freq", "noise_type", "noise_std"}  # fmt: skip
 
 
 def config(env_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -42,6 +43,11 @@ def config(env_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
     online = yaml.safe_load((hyperparams_dir() / "cql_finetune.yml").read_text())[env_id]
     settings = {key: value for key, value in {**offline, **online}.items() if key not in ZOO_ONLY}
     settings["policy_kwargs"] = eval(settings["policy_kwargs"]) if "policy_kwargs" in settings else None
+    if online.get("noise_type", "normal") != "normal":
+        raise ValueError(f"noise_type {online['noise_type']!r}: only the config's 'normal' noise is timed here")
+    if "noise_std" in online:  # the zoo's action noise, made as the zoo makes it
+        shape = gym.spec(env_id).make(**online.get("env_kwargs", {})).action_space.shape
+        settings["action_noise"] = NormalActionNoise(np.zeros(shape), np.full(shape, float(online["noise_std"])))
     return settings, online.get("env_kwargs", {})
 
 

@@ -1,7 +1,7 @@
 """The experiment scripts in experiments/: each run end to end as a subprocess on a tiny dataset and clone, their
 command lines, and the backup variants of cql_from_clone.py.
 
-The six script runs start together, once per module (each is mostly start-up time), and the tests check their
+The seven script runs start together, once per module (each is mostly start-up time), and the tests check their
 results.
 """
 
@@ -25,7 +25,9 @@ from sb3_cql import BC, CQL
 from sb3_cql.data import CollectionSpec, collect_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ("acting_noise", "action_drift", "bc_continued", "cql_from_clone", "gripper_reopenings", "q_probe")
+SCRIPTS = ("acting_noise", "action_drift", "bc_continued", "cql_from_clone", "gripper_reopenings", "q_probe",
+           "values_vs_returns")  # fmt: skip
+FINETUNED_STEPS = 700  # one Panda-v0 episode, cut by the time limit unless it succeeds
 DATASET = "sb3cql/Panda-v0/tiny-regrasp-delta-v0"
 TINY = {"batch_size": 16, "bc_steps": 1, "policy_kwargs": {"net_arch": [32]}}
 ACTION_DIM = 9
@@ -47,7 +49,8 @@ def load_script(name: str):
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
     """A 2-episode delta-action dataset of the regrasping PD controller (one success, one episode that reopens) in a
-    temporary MINARI_DATASETS_PATH, and a clone of it trained for a few steps, saved as ``bc.zip``."""
+    temporary MINARI_DATASETS_PATH, a clone of it trained for a few steps, saved as ``bc.zip``, and a calibrated CQL
+    model fine-tuned online for one episode, ``finetuned.zip`` with its online transitions ``finetuned_buffer.pkl``."""
     root = tmp_path_factory.mktemp("experiments")
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MINARI_DATASETS_PATH", str(root / "datasets"))
@@ -57,6 +60,12 @@ def inputs(tmp_path_factory):
                    policy_kwargs={"net_arch": [32]}, seed=0)  # fmt: skip
         clone.learn(3)
         clone.save(root / "bc.zip")
+        finetuned = CQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, batch_size=16,
+                        policy_kwargs={"net_arch": [32]}, cql_calibrated=True, online_fraction=0.5, reward_scale=4.0,
+                        reward_bias=-2.0, seed=0)  # fmt: skip
+        finetuned.learn(FINETUNED_STEPS)
+        finetuned.save(root / "finetuned.zip")
+        finetuned.save_replay_buffer(root / "finetuned_buffer.pkl")
         yield root
 
 
@@ -72,6 +81,7 @@ def commands(root: Path) -> dict[str, list[str]]:
                            "--log-dir", str(root / "cql_from_clone")],
         "gripper_reopenings": [DATASET],
         "q_probe": ["2", tiny, "--dataset-id", DATASET, "--probe-states", "64", "--log-dir", str(root / "q_probe")],
+        "values_vs_returns": [str(root / "finetuned.zip"), str(root / "finetuned_buffer.pkl"), "--offline-states", "64"],
     }  # fmt: skip
 
 
@@ -179,6 +189,40 @@ def test_q_probe_prints_q_at_data_perturbed_and_policy_actions(runs, inputs):
     assert re.fullmatch(rf"Q policy mean with data gripper {FLOAT}", lines[9]) and len(lines) == 10
 
 
+def test_values_vs_returns_scores_online_and_offline_states_against_their_returns_to_go(runs, inputs):
+    lines = succeeded(runs, "values_vs_returns")
+    # The untrained policy fails its one online episode, which the time limit cuts.
+    assert re.fullmatch(rf"online: 1 episodes ended \(0 successful\), {FINETUNED_STEPS} transitions; "
+                        r"[01] of the 1 failed ones reopen the gripper", lines[0])  # fmt: skip
+    assert lines[1].split() == ["group", "states", "RTG", "Q(s,a)", "Q(s,pi)", "Q(s,pi)<RTG", "corr(Q(s,a),RTG)"]
+    rows = {" ".join(line.split()[:2]): line.split()[2:] for line in lines[2:]}
+    assert list(rows) == ["online successful", "online failed", "offline successful", "offline failed"]
+    assert rows["online successful"] == ["0"]
+    floor = -2.0 / (1 - 0.99)  # rewards 4r - 2: a failed, cut episode earns -2 a step forever
+    states, rtg, q_data, q_policy, below, correlation = rows["online failed"]
+    assert (int(states), correlation) == (FINETUNED_STEPS, "nan")  # one return-to-go: no correlation
+    assert float(rtg) == pytest.approx(floor, abs=0.05)  # printed with one decimal
+    model = CQL.load(inputs / "finetuned.zip")
+    model.load_replay_buffer(inputs / "finetuned_buffer.pkl")
+    online = model.replay_buffer.online
+    observations, actions = (th.as_tensor(array[:FINETUNED_STEPS, 0]) for array in (online.observations, online.actions))
+    with th.no_grad():
+        expected = th.min(*model.critic(observations, actions)).mean().item()
+        policy = th.min(*model.critic(observations, model.actor(observations, deterministic=True)))
+    assert float(q_data) == pytest.approx(expected, abs=0.06)  # printed with one decimal
+    assert float(below) == pytest.approx((policy < floor).float().mean().item(), abs=6e-4)
+    # The dataset's two episodes: the successful one earns more than the floor from every state, the failed one not.
+    assert int(rows["offline successful"][0]) + int(rows["offline failed"][0]) == 64
+    assert float(rows["offline successful"][1]) > floor + 0.05
+    assert float(rows["offline failed"][1]) == pytest.approx(floor, abs=0.05)
+
+
+def test_values_vs_returns_says_in_one_line_that_a_model_is_missing(tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        load_script("values_vs_returns").main([str(tmp_path / "missing.zip"), str(tmp_path / "missing.pkl")])
+    assert str(exit_.value.code).startswith("error: ") and "\n" not in str(exit_.value.code)
+
+
 @pytest.mark.parametrize("name", SCRIPTS)
 def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
@@ -201,6 +245,8 @@ def test_help_shows_the_usage(name, capsys):
         ("gripper_reopenings", [], "the following arguments are required: DATASET_ID"),
         ("acting_noise", ["bc.zip", "--modes", "normal"], "argument --modes: unknown mode 'normal'"),
         ("acting_noise", ["bc.zip", "--seeds", "9-1"], "argument --seeds: '9-1' is an empty range"),
+        ("values_vs_returns", ["model.zip"], "the following arguments are required: buffer"),
+        ("values_vs_returns", ["model.zip", "buffer.pkl", "--offline-states", "0"], "must be a positive integer"),
     ],
 )
 def test_a_bad_argument_is_a_usage_error(name, args, message, capsys):

@@ -131,7 +131,7 @@ def test_a_finished_training_says_where_its_models_are_and_how_to_use_them(zoo, 
     ]
 
 
-def test_fine_tuning_online_checkpoints_its_transitions_and_continues_from_them(zoo, trained):
+def test_fine_tuning_online_explores_around_its_action_checkpoints_its_transitions_and_continues_from_them(zoo, trained):
     finetune = ["--algo", "cql", "--env", "PandaForce-v0", "--conf-file", "cql_finetune.yml", "-f", "finetune"]
     zoo.run(*finetune, "-i", str(trained / "Panda-v0.zip"), "-n", "300", "--eval-freq", "150", "--eval-episodes", "1",
             "--save-freq", "150", "-tb", "tb", "--seed", "0")  # fmt: skip
@@ -140,6 +140,11 @@ def test_fine_tuning_online_checkpoints_its_transitions_and_continues_from_them(
     (events,) = (zoo.root / "tb" / "PandaForce-v0").glob("CQL_1/events.out.tfevents.*")
     assert "eval/success_rate" in EventAccumulator(str(events)).Reload().Tags()["scalars"]
     assert (run / "rl_model_replay_buffer_150_steps.pkl").is_file()
+    # The config acts with the deterministic action plus N(0, 0.1) noise, not with samples of the policy.
+    acting = "from sb3_cql import CQL; m = CQL.load('{}'); print(m.deterministic_rollouts, m.action_noise)"
+    deterministic, noise = zoo.python(acting.format(run / "PandaForce-v0.zip")).split(" ", 1)
+    assert deterministic == "True" and noise.startswith("NormalActionNoise(mu=[0. 0. 0. 0. 0. 0. 0. 0. 0.]")
+    assert noise.endswith("sigma=[0.1 0.1 0.1 0.1 0.1 0.1 0.1 0.1 0.1])")
     online_size = ("from sb3_cql import CQL; m = CQL.load('{}'); m.load_replay_buffer('{}'); "
                    "print(m.replay_buffer.online.size())")  # fmt: skip
     # A checkpoint is saved before its step's transition is stored.

@@ -1,0 +1,140 @@
+"""A fine-tuned CQL model's values against the returns its data actually earned: online and offline states, of
+successful and failed episodes.
+
+Usage: python experiments/values_vs_returns.py MODEL.zip BUFFER.pkl [--offline-states N] [--seed S] [--threads N]
+
+``MODEL.zip`` is a :class:`sb3_cql.CQL` model fine-tuned online and ``BUFFER.pkl`` the online transitions saved with
+it (``save_replay_buffer``, or a fine-tuning checkpoint's ``rl_model_replay_buffer_<N>_steps.pkl``); its offline data
+come back from the model's dataset id (collected first if missing, as the model does). Every state of an ended
+online episode and ``--offline-states`` (5000) states drawn from the offline data (``--seed``, 0) are scored with the
+twin critics' minimum Q at the stored action, ``Q(s,a)``, and at the policy's deterministic action, ``Q(s,pi)``,
+beside the state's discounted return-to-go under the critics' reward transform (:func:`sb3_cql.common.returns_to_go`:
+a failed episode cut at 700 steps earns the per-step reward forever, the floor ``reward_bias / (1 - gamma)``). An
+episode is successful when its return-to-go lies above that floor. Printed::
+
+    online: 19 episodes ended (4 successful), 11990 transitions; 11 of the 15 failed ones reopen the gripper
+    group                states     RTG  Q(s,a) Q(s,pi) Q(s,pi)<RTG  corr(Q(s,a),RTG)
+    online successful      2400   -80.1   -90.3   -91.0       0.612             0.41
+    ...
+
+``Q(s,pi)<RTG`` is the fraction of states whose policy value lies below what the data's episode earned from there
+(where calibrated CQL's bound lifts the pushed-down value); the correlation says whether the critic ranks states as
+their outcomes do. A failed episode reopens the gripper when its gripper command (the last action dimension) opens
+again after it has first closed (``experiments/gripper_reopenings.py``). Nothing is written; torch runs ``--threads``
+threads (1 by default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+import torch as th
+from _cli import positive_int
+from gripper_reopenings import reopens
+from stable_baselines3.common.buffers import ReplayBuffer
+
+import envs  # noqa: F401  (registers the tasks)
+from sb3_cql import CQL
+from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql.data import DatasetError
+
+HEADER = (f"{'group':20s} {'states':>6s} {'RTG':>7s} {'Q(s,a)':>7s} {'Q(s,pi)':>7s} {'Q(s,pi)<RTG':>11s} "
+          f"{'corr(Q(s,a),RTG)':>17s}")  # fmt: skip
+
+
+def with_returns_to_go(model: CQL, buffer: ReplayBuffer) -> ReturnToGoReplayBuffer:
+    """``buffer`` with its returns-to-go under the model's discount and reward transform (as calibrated CQL has them)."""
+    if isinstance(buffer, ReturnToGoReplayBuffer):
+        return buffer
+    return ReturnToGoReplayBuffer.from_replay_buffer(buffer, model.gamma, model.reward_scale, model.reward_bias)
+
+
+def load_buffers(model: CQL, buffer_path: str) -> tuple[ReturnToGoReplayBuffer, ReturnToGoReplayBuffer]:
+    """``(offline data, online transitions)`` of a fine-tuned model, both with returns-to-go."""
+    model._ensure_offline_data()
+    offline = model.replay_buffer
+    model.replay_buffer = None
+    model.load_replay_buffer(buffer_path)
+    if not isinstance(model.replay_buffer, MixedReplayBuffer):
+        kind = type(model.replay_buffer).__name__
+        raise ValueError(f"{buffer_path} holds no online transitions of a fine-tuning (a {kind})")
+    assert offline is not None
+    return with_returns_to_go(model, offline), with_returns_to_go(model, model.replay_buffer.online)
+
+
+def online_episodes(buffer: ReturnToGoReplayBuffer) -> list[np.ndarray]:
+    """Row indices of each ended episode of a buffer filled once from its start (an online part), in order; the
+    steps of an episode left unfinished when the fine-tuning resumed from a checkpoint (no return-to-go) are left out."""
+    ends = np.flatnonzero(buffer.dones[: buffer.size(), 0] > 0)
+    starts = np.concatenate([[0], ends[:-1] + 1]) if len(ends) else np.array([], dtype=np.int64)
+    episodes = [np.arange(start, end + 1) for start, end in zip(starts, ends, strict=True)]
+    episodes = [rows[np.isfinite(buffer.returns_to_go[rows, 0])] for rows in episodes]
+    return [rows for rows in episodes if len(rows)]
+
+
+def values(model: CQL, buffer: ReturnToGoReplayBuffer, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(returns-to-go, Q(s,a), Q(s,pi))`` of the buffer's ``rows`` (env 0), the twin critics' minimum."""
+    observations = th.as_tensor(buffer.observations[rows, 0], device=model.device)
+    actions = th.as_tensor(buffer.actions[rows, 0], device=model.device)
+    with th.no_grad():
+        q_data = th.min(th.cat(model.critic(observations, actions), dim=1), dim=1).values
+        policy_actions = model.actor(observations, deterministic=True)
+        q_policy = th.min(th.cat(model.critic(observations, policy_actions), dim=1), dim=1).values
+    return buffer.returns_to_go[rows, 0].astype(np.float64), q_data.cpu().numpy(), q_policy.cpu().numpy()
+
+
+def row(name: str, scored: tuple[np.ndarray, np.ndarray, np.ndarray]) -> str:
+    returns, q_data, q_policy = scored
+    if len(returns) == 0:
+        return f"{name:20s} {0:6d}"
+    correlation = np.corrcoef(q_data, returns)[0, 1] if len(returns) > 1 and returns.std() > 0 else float("nan")
+    return (f"{name:20s} {len(returns):6d} {returns.mean():7.1f} {q_data.mean():7.1f} {q_policy.mean():7.1f} "
+            f"{(q_policy < returns).mean():11.3f} {correlation:17.2f}")  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/values_vs_returns.py", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    parser.add_argument("model", help="a CQL model fine-tuned online (.zip)")
+    parser.add_argument("buffer", help="its online transitions (.pkl)")
+    parser.add_argument("--offline-states", type=positive_int, default=5000, help="offline states drawn (5000)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of that draw (0)")
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch threads (default 1)")
+    args = parser.parse_args(argv)
+    th.set_num_threads(args.threads)
+    try:
+        model = CQL.load(args.model)
+        offline, online = load_buffers(model, args.buffer)
+    except (ValueError, OSError, DatasetError) as error:
+        sys.exit(f"error: {error}")
+    floor = np.float32(model.reward_bias / (1.0 - model.gamma))  # a failed, cut episode's return-to-go, as stored
+
+    episodes = online_episodes(online)
+    successful = [rows for rows in episodes if online.returns_to_go[rows[-1], 0] > floor]
+    failed = [rows for rows in episodes if online.returns_to_go[rows[-1], 0] <= floor]
+    reopening = sum(reopens(online.actions[rows, 0, -1]) for rows in failed)
+    print(f"online: {len(episodes)} episodes ended ({len(successful)} successful), {online.size()} transitions; "
+          f"{reopening} of the {len(failed)} failed ones reopen the gripper")  # fmt: skip
+
+    rng = np.random.default_rng(args.seed)
+    ended = np.flatnonzero(np.isfinite(offline.returns_to_go[: offline.size(), 0]))
+    drawn = rng.choice(ended, size=min(args.offline_states, len(ended)), replace=False)
+    drawn_success = offline.returns_to_go[drawn, 0] > floor
+    empty = np.array([], dtype=np.int64)
+    print(HEADER)
+    groups = {
+        "online successful": np.concatenate(successful) if successful else empty,
+        "online failed": np.concatenate(failed) if failed else empty,
+        "offline successful": drawn[drawn_success],
+        "offline failed": drawn[~drawn_success],
+    }
+    for name, rows in groups.items():
+        print(row(name, values(model, online if name.startswith("online") else offline, rows)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
