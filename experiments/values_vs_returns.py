@@ -12,15 +12,20 @@ beside the state's discounted return-to-go under the critics' reward transform (
 a failed episode cut at 700 steps earns the per-step reward forever, the floor ``reward_bias / (1 - gamma)``). An
 episode is successful when its return-to-go lies above that floor. Printed::
 
-    online: 19 episodes ended (4 successful), 11990 transitions; 11 of the 15 failed ones reopen the gripper
-    group                states     RTG  Q(s,a) Q(s,pi) Q(s,pi)<RTG  corr(Q(s,a),RTG)
-    online successful      2400   -80.1   -90.3   -91.0       0.612             0.41
+    online: 31 episodes ended (10 successful), 19999 transitions; 18 of the 21 failed ones reopen the gripper
+    group                states     RTG  Q(s,a) Q(s,pi) Q(s,pi)<RTG  corr(Q(s,a),RTG) median Q(s,a) Q(s,a)<RTG-100
+    online successful      4629  -157.2  -166.4  -164.7       0.541              0.92        -187.0          0.000
     ...
+    online successful, steps before the end: 0-99: RTG -103.2, median Q(s,a) -110.5 (1000); 100-199: ...
 
-``Q(s,pi)<RTG`` is the fraction of states whose policy value lies below what the data's episode earned from there
-(where calibrated CQL's bound lifts the pushed-down value); the correlation says whether the critic ranks states as
-their outcomes do. A failed episode reopens the gripper when its gripper command (the last action dimension) opens
-again after it has first closed (``experiments/gripper_reopenings.py``). Nothing is written; torch runs ``--threads``
+(Q columns are means unless named.) ``Q(s,pi)<RTG`` is the fraction of states whose policy value lies below what
+the data's episode earned from there (where calibrated CQL's bound lifts the pushed-down value); the correlation
+says whether the critic ranks states as their outcomes do; ``Q(s,a)<RTG-100`` is the fraction of states valued more
+than 100 below their return-to-go. The last line splits the successful online episodes' states by how many steps
+before the episode's end (the lift) they lie: with the discount, a success several hundred steps ahead is worth
+little more than the floor. A failed episode reopens the gripper when its gripper command (the last action dimension) opens
+again after it has first closed (``experiments/gripper_reopenings.py``), each held for 20 steps or more (shorter
+runs of one sign are the exploration noise's flips). Nothing is written; torch runs ``--threads``
 threads (1 by default).
 """
 
@@ -41,7 +46,11 @@ from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
 from sb3_cql.data import DatasetError
 
 HEADER = (f"{'group':20s} {'states':>6s} {'RTG':>7s} {'Q(s,a)':>7s} {'Q(s,pi)':>7s} {'Q(s,pi)<RTG':>11s} "
-          f"{'corr(Q(s,a),RTG)':>17s}")  # fmt: skip
+          f"{'corr(Q(s,a),RTG)':>17s} {'median Q(s,a)':>13s} {'Q(s,a)<RTG-100':>14s}")  # fmt: skip
+#: Steps a gripper command must keep its sign to count (the exploration noise flips single steps).
+HELD_STEPS = 20
+#: Bins of steps before the end of a successful episode, ``(first, last)``.
+BEFORE_SUCCESS = ((0, 99), (100, 199), (200, 399), (400, 699))
 
 
 def with_returns_to_go(model: CQL, buffer: ReplayBuffer) -> ReturnToGoReplayBuffer:
@@ -74,6 +83,13 @@ def online_episodes(buffer: ReturnToGoReplayBuffer) -> list[np.ndarray]:
     return [rows for rows in episodes if len(rows)]
 
 
+def held(commands: np.ndarray, steps: int = HELD_STEPS) -> np.ndarray:
+    """The gripper commands less the runs of one sign shorter than ``steps``: what the policy held, not noise flips."""
+    runs = np.split(commands, np.flatnonzero(np.diff(np.sign(commands))) + 1)
+    kept = [run for run in runs if len(run) >= steps]
+    return np.concatenate(kept) if kept else commands[:0]
+
+
 def values(model: CQL, buffer: ReturnToGoReplayBuffer, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(returns-to-go, Q(s,a), Q(s,pi))`` of the buffer's ``rows`` (env 0), the twin critics' minimum."""
     observations = th.as_tensor(buffer.observations[rows, 0], device=model.device)
@@ -91,7 +107,22 @@ def row(name: str, scored: tuple[np.ndarray, np.ndarray, np.ndarray]) -> str:
         return f"{name:20s} {0:6d}"
     correlation = np.corrcoef(q_data, returns)[0, 1] if len(returns) > 1 and returns.std() > 0 else float("nan")
     return (f"{name:20s} {len(returns):6d} {returns.mean():7.1f} {q_data.mean():7.1f} {q_policy.mean():7.1f} "
-            f"{(q_policy < returns).mean():11.3f} {correlation:17.2f}")  # fmt: skip
+            f"{(q_policy < returns).mean():11.3f} {correlation:17.2f} {np.median(q_data):13.1f} "
+            f"{(q_data < returns - 100).mean():14.3f}")  # fmt: skip
+
+
+def before_success(model: CQL, buffer: ReturnToGoReplayBuffer, episodes: list[np.ndarray]) -> str:
+    """Mean return-to-go and median Q(s,a) of successful episodes' states by how many steps before the end they lie."""
+    parts = []
+    for first, last in BEFORE_SUCCESS:
+        rows = [rows[::-1][first : last + 1] for rows in episodes]
+        rows = np.concatenate(rows) if rows else np.array([], dtype=np.int64)
+        if len(rows):
+            returns, q_data, _ = values(model, buffer, rows)
+            parts.append(f"{first}-{last}: RTG {returns.mean():.1f}, median Q(s,a) {np.median(q_data):.1f} ({len(rows)})")
+        else:
+            parts.append(f"{first}-{last}: none")
+    return "online successful, steps before the end: " + "; ".join(parts)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -116,7 +147,7 @@ def main(argv: list[str] | None = None) -> None:
     episodes = online_episodes(online)
     successful = [rows for rows in episodes if online.returns_to_go[rows[-1], 0] > floor]
     failed = [rows for rows in episodes if online.returns_to_go[rows[-1], 0] <= floor]
-    reopening = sum(reopens(online.actions[rows, 0, -1]) for rows in failed)
+    reopening = sum(reopens(held(online.actions[rows, 0, -1])) for rows in failed)
     print(f"online: {len(episodes)} episodes ended ({len(successful)} successful), {online.size()} transitions; "
           f"{reopening} of the {len(failed)} failed ones reopen the gripper")  # fmt: skip
 
@@ -134,6 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     }
     for name, rows in groups.items():
         print(row(name, values(model, online if name.startswith("online") else offline, rows)), flush=True)
+    print(before_success(model, online, successful))
 
 
 if __name__ == "__main__":

@@ -194,12 +194,14 @@ def test_values_vs_returns_scores_online_and_offline_states_against_their_return
     # The untrained policy fails its one online episode, which the time limit cuts.
     assert re.fullmatch(rf"online: 1 episodes ended \(0 successful\), {FINETUNED_STEPS} transitions; "
                         r"[01] of the 1 failed ones reopen the gripper", lines[0])  # fmt: skip
-    assert lines[1].split() == ["group", "states", "RTG", "Q(s,a)", "Q(s,pi)", "Q(s,pi)<RTG", "corr(Q(s,a),RTG)"]
-    rows = {" ".join(line.split()[:2]): line.split()[2:] for line in lines[2:]}
+    assert lines[1].split() == ["group", "states", "RTG", "Q(s,a)", "Q(s,pi)", "Q(s,pi)<RTG", "corr(Q(s,a),RTG)",
+                                "median", "Q(s,a)", "Q(s,a)<RTG-100"]  # fmt: skip
+    rows = {" ".join(line.split()[:2]): line.split()[2:] for line in lines[2:6]}
     assert list(rows) == ["online successful", "online failed", "offline successful", "offline failed"]
     assert rows["online successful"] == ["0"]
+    assert lines[6:] == ["online successful, steps before the end: 0-99: none; 100-199: none; 200-399: none; 400-699: none"]
     floor = -2.0 / (1 - 0.99)  # rewards 4r - 2: a failed, cut episode earns -2 a step forever
-    states, rtg, q_data, q_policy, below, correlation = rows["online failed"]
+    states, rtg, q_data, q_policy, below, correlation, median, far_below = rows["online failed"]
     assert (int(states), correlation) == (FINETUNED_STEPS, "nan")  # one return-to-go: no correlation
     assert float(rtg) == pytest.approx(floor, abs=0.05)  # printed with one decimal
     model = CQL.load(inputs / "finetuned.zip")
@@ -210,11 +212,39 @@ def test_values_vs_returns_scores_online_and_offline_states_against_their_return
         expected = th.min(*model.critic(observations, actions)).mean().item()
         policy = th.min(*model.critic(observations, model.actor(observations, deterministic=True)))
     assert float(q_data) == pytest.approx(expected, abs=0.06)  # printed with one decimal
+    critic = th.min(*model.critic(observations, actions)).detach()
+    assert float(median) == pytest.approx(np.median(critic.numpy()), abs=0.06)
+    assert float(far_below) == pytest.approx((critic < floor - 100).float().mean().item(), abs=6e-4)
     assert float(below) == pytest.approx((policy < floor).float().mean().item(), abs=6e-4)
     # The dataset's two episodes: the successful one earns more than the floor from every state, the failed one not.
     assert int(rows["offline successful"][0]) + int(rows["offline failed"][0]) == 64
     assert float(rows["offline successful"][1]) > floor + 0.05
     assert float(rows["offline failed"][1]) == pytest.approx(floor, abs=0.05)
+
+
+def test_values_vs_returns_bins_a_successful_episodes_states_by_steps_before_its_end(inputs):
+    script = load_script("values_vs_returns")
+    model = CQL.load(inputs / "finetuned.zip")
+    model.load_replay_buffer(inputs / "finetuned_buffer.pkl")
+    online = script.with_returns_to_go(model, model.replay_buffer.online)
+    episode = np.arange(250)  # taken as one episode: its last 100 states, the 100 before, then 50
+    line = script.before_success(model, online, [episode])
+    counts = [int(count) for count in re.findall(r"\((\d+)\)", line)]
+    assert counts == [100, 100, 50] and line.endswith("400-699: none")
+    rtg = [float(value) for value in re.findall(rf"RTG ({FLOAT})", line)]
+    expected = [online.returns_to_go[rows, 0].mean() for rows in (episode[150:], episode[50:150], episode[:50])]
+    np.testing.assert_allclose(rtg, expected, atol=0.06)
+
+
+def test_a_reopening_counts_only_gripper_commands_held_for_20_steps():
+    held = load_script("values_vs_returns").held
+    reopens = load_script("gripper_reopenings").reopens
+    opened, closed = np.ones(30), -np.ones(30)
+    flip = np.concatenate([opened, closed, np.full(19, 0.5), closed])  # a noise flip open while closed
+    np.testing.assert_array_equal(held(flip), np.concatenate([opened, closed, closed]))
+    assert reopens(flip) and not reopens(held(flip))
+    assert reopens(held(np.concatenate([opened, closed, np.full(20, 0.5), closed])))  # a regrasp
+    assert len(held(np.ones(19))) == 0
 
 
 def test_values_vs_returns_says_in_one_line_that_a_model_is_missing(tmp_path):
