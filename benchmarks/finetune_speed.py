@@ -45,9 +45,8 @@ def config(env_id: str) -> tuple[dict[str, Any], dict[str, Any]]:
     settings["policy_kwargs"] = eval(settings["policy_kwargs"]) if "policy_kwargs" in settings else None
     if online.get("noise_type", "normal") != "normal":
         raise ValueError(f"noise_type {online['noise_type']!r}: only the config's 'normal' noise is timed here")
-    if "noise_std" in online:  # the zoo's action noise, made as the zoo makes it
-        shape = gym.spec(env_id).make(**online.get("env_kwargs", {})).action_space.shape
-        settings["action_noise"] = NormalActionNoise(np.zeros(shape), np.full(shape, float(online["noise_std"])))
+    if "noise_std" in online:  # the zoo's action noise, made as the zoo makes it, for the action space in main()
+        settings["action_noise"] = float(online["noise_std"])
     return settings, online.get("env_kwargs", {})
 
 
@@ -109,6 +108,9 @@ def main() -> None:
     th.set_num_threads(args.threads)
     settings, env_kwargs = config(args.env)
     env = gym.make(args.env, **env_kwargs)
+    if "action_noise" in settings:
+        shape = env.action_space.shape
+        settings["action_noise"] = NormalActionNoise(np.zeros(shape), np.full(shape, settings["action_noise"]))
     print(f"# {args.env} {env_kwargs}, batch {settings.get('batch_size')}, {settings['policy_kwargs']}, "
           f"{settings.get('cql_n_actions')} sampled actions, online fraction {settings.get('online_fraction')}, "
           f"{args.threads} thread(s), medians of {args.rounds} rounds of {args.steps} env steps")  # fmt: skip

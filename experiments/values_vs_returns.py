@@ -14,18 +14,19 @@ episode is successful when its return-to-go lies above that floor. Printed::
 
     online: 31 episodes ended (10 successful), 19999 transitions; 18 of the 21 failed ones reopen the gripper
     group                states     RTG  Q(s,a) Q(s,pi) Q(s,pi)<RTG  corr(Q(s,a),RTG) median Q(s,a) Q(s,a)<RTG-100
-    online successful      4629  -157.2  -166.4  -164.7       0.541              0.92        -187.0          0.000
+    online successful      4629  -157.2  -166.4  -164.7       0.541              0.92        -189.6          0.000
+    online failed         14700  -200.0  -421.6  -419.9       0.163               nan        -196.1          0.044
     ...
-    online successful, steps before the end: 0-99: RTG -103.2, median Q(s,a) -110.5 (1000); 100-199: ...
+    online successful, steps before the end: 0-99: RTG -71.9, median Q(s,a) -79.6 (1000); 100-199: ...
 
 (Q columns are means unless named.) ``Q(s,pi)<RTG`` is the fraction of states whose policy value lies below what
 the data's episode earned from there (where calibrated CQL's bound lifts the pushed-down value); the correlation
 says whether the critic ranks states as their outcomes do; ``Q(s,a)<RTG-100`` is the fraction of states valued more
 than 100 below their return-to-go. The last line splits the successful online episodes' states by how many steps
 before the episode's end (the lift) they lie: with the discount, a success several hundred steps ahead is worth
-little more than the floor. A failed episode reopens the gripper when its gripper command (the last action dimension) opens
-again after it has first closed (``experiments/gripper_reopenings.py``), each held for 20 steps or more (shorter
-runs of one sign are the exploration noise's flips). Nothing is written; torch runs ``--threads``
+little more than the floor. A failed episode reopens the gripper when its gripper command (the last action
+dimension) opens again after it has first closed (``experiments/gripper_reopenings.py``), each held for 20 steps or
+more (shorter runs of one sign are the exploration noise's flips). Nothing is written; torch runs ``--threads``
 threads (1 by default).
 """
 
