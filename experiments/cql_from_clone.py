@@ -62,8 +62,8 @@ class ClippedBackupCQL(CQL):
     """CQL whose backup clamps the next-state values to the returns the rewards allow, ``min_r / (1 - gamma)`` to
     ``max_r / (1 - gamma)``, with ``min_r`` and ``max_r`` the 0/1 rewards after ``reward_scale`` and ``reward_bias``."""
 
-    def _next_q_values(self, *args: Any, **kwargs: Any) -> th.Tensor:
-        values = super()._next_q_values(*args, **kwargs)
+    def next_state_values(self, *args: Any, **kwargs: Any) -> th.Tensor:
+        values = super().next_state_values(*args, **kwargs)
         low, high = sorted((self.reward_bias, self.reward_scale + self.reward_bias))
         return values.clamp(low / (1 - self.gamma), high / (1 - self.gamma))
 
@@ -72,12 +72,12 @@ class MeanBackupCQL(CQL):
     """CQL whose backup scores the policy's mean action at s' (TD3's target) instead of a sample: Q of the
     deterministic policy that is evaluated, not of its noisy samples."""
 
-    def _next_q_values(
+    def next_state_values(
         self, next_observations: th.Tensor, next_policy: tuple[th.Tensor, th.Tensor], ent_coef: th.Tensor
     ) -> th.Tensor:
         mean_actions, log_std = next_policy
         narrowest = (mean_actions, th.full_like(log_std, LOG_STD_MIN))
-        return super()._next_q_values(next_observations, narrowest, ent_coef)
+        return super().next_state_values(next_observations, narrowest, ent_coef)
 
 
 VARIANTS = {"clip_backup": ClippedBackupCQL, "mean_backup": MeanBackupCQL}

@@ -191,7 +191,7 @@ def failing_chain_buffer(gamma: float) -> tuple[ReplayBuffer, float]:
 def q_at_policy_actions(model: CQL, observations: th.Tensor, n: int = 10) -> th.Tensor:
     """The lower critic's value of ``n`` policy samples at each observation."""
     with th.no_grad():
-        actions, _ = model._sample_actions(*model.actor.get_action_dist_params(observations)[:2], n)
+        actions, _ = model.sample_policy_actions(*model.actor.get_action_dist_params(observations)[:2], n)
         return th.cat(model.critic(observations.repeat_interleave(n, dim=0), actions), dim=1).min(dim=1).values
 
 
@@ -240,12 +240,12 @@ def test_calibration_lifts_the_policy_groups_to_the_bound_and_logs_how_often(tmp
     gaps = {}
     for name, bound in (("high", 1000.0), ("none", -np.inf)):
         th.manual_seed(0)
-        _, gap, logged = model._q_values_and_conservative_terms(data._replace(returns_to_go=th.full((64, 1), bound)),
-                                                                policy, policy)  # fmt: skip
-        gaps[name] = (gap[0].item(), logged["train/cql_bound_rate"])
+        logged = {}
+        _, gap = model.conservative_gaps(data._replace(returns_to_go=th.full((64, 1), bound)), policy, policy, logged)
+        gaps[name] = (gap[0].item(), logged["train/cql_bound_rate"][0])
     model.cql_calibrated = False
     th.manual_seed(0)
-    plain = model._q_values_and_conservative_terms(data, policy, policy)[1][0].item()
+    plain = model.conservative_gaps(data, policy, policy, {})[1][0].item()
     assert gaps["high"][0] > 1000.0 and gaps["high"][1] == 1.0  # every policy-action value lifted
     assert gaps["none"] == (pytest.approx(plain, rel=1e-6), 0.0)
     model.cql_calibrated = True
@@ -509,7 +509,7 @@ def test_policy_actions_are_sampled_as_from_repeated_states():
     observations = th.randn(6, 3)
     th.manual_seed(1)
     with th.no_grad():
-        actions, log_prob = model._sample_actions(*model.actor.get_action_dist_params(observations)[:2], 4)
+        actions, log_prob = model.sample_policy_actions(*model.actor.get_action_dist_params(observations)[:2], 4)
     th.manual_seed(1)
     expected_actions, expected_log_prob = model.actor.action_log_prob(observations.repeat_interleave(4, dim=0))
     th.testing.assert_close(actions, expected_actions)

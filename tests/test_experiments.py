@@ -308,9 +308,9 @@ def test_clip_backup_clamps_the_next_state_values_to_the_possible_returns(inputs
     policy = model.actor.get_action_dist_params(data.next_observations)[:2]
     with th.no_grad():
         th.manual_seed(0)
-        clipped = model._next_q_values(data.next_observations, policy, th.ones(1))
+        clipped = model.next_state_values(data.next_observations, policy, th.ones(1))
         th.manual_seed(0)
-        plain = CQL._next_q_values(model, data.next_observations, policy, th.ones(1))
+        plain = CQL.next_state_values(model, data.next_observations, policy, th.ones(1))
     bound = 0.0005 / (1 - model.gamma)  # rewards -0.0005 or 0.0005
     assert plain.abs().max() > bound  # the untrained critics' values exceed the bound
     th.testing.assert_close(clipped, plain.clamp(-bound, bound))
@@ -321,6 +321,6 @@ def test_mean_backup_scores_the_mean_action(inputs):
     data = model.replay_buffer.sample(256)
     mean_actions, log_std = model.actor.get_action_dist_params(data.next_observations)[:2]
     with th.no_grad():
-        values = model._next_q_values(data.next_observations, (mean_actions, log_std), th.ones(1))
+        values = model.next_state_values(data.next_observations, (mean_actions, log_std), th.ones(1))
         expected = th.cat(model.critic_target(data.next_observations, th.tanh(mean_actions)), 1).min(1, keepdim=True).values
     th.testing.assert_close(values, expected, atol=1e-4, rtol=0)

@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
-from typing import Any
+import inspect
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch as th
-from minari import MinariDataset
+from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import update_learning_rate
 
 from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
+
+if TYPE_CHECKING:
+    from minari import MinariDataset
 
 
 class BC(OfflineSAC):
@@ -30,12 +34,20 @@ class BC(OfflineSAC):
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
     :param batch_size: minibatch size of each gradient step.
     :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
+    :param replay_buffer_kwargs: keywords of that class (SAC's).
+    :param optimize_memory_usage: SAC's; only ``False`` (the offline data keep each transition's next observation).
+    :param n_steps: SB3's n-step returns in the buffer's samples (SAC's meaning; BC reads only their observations
+        and actions).
+    :param stats_window_size: SAC's window of the rollout logs.
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
     :param verbose: 0 silent, 1 training logs, 2 debug.
     :param seed: seed of the random generators.
     :param device: torch device.
     :param _init_setup_model: build the networks now.
+    :param sac_kwargs: none: SAC's keywords for what BC does not train (``gamma``, ``tau``, ``ent_coef``, the
+        interaction's ``train_freq``, ...) are refused with one line saying so.
     """
 
     def __init__(
@@ -47,13 +59,21 @@ class BC(OfflineSAC):
         buffer_size: int = 2_000_000,
         batch_size: int = 256,
         normalize_observations: bool = True,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        n_steps: int = 1,
+        stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
+        **sac_kwargs: Any,
     ) -> None:
+        if sac_kwargs:
+            _refuse_sac_keywords(sac_kwargs)
         super().__init__(
             policy,
             env,
@@ -61,6 +81,11 @@ class BC(OfflineSAC):
             learning_rate=learning_rate,
             buffer_size=buffer_size,
             normalize_observations=normalize_observations,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            n_steps=n_steps,
+            stats_window_size=stats_window_size,
             policy_kwargs=policy_kwargs,
             batch_size=batch_size,
             tensorboard_log=tensorboard_log,
@@ -86,3 +111,13 @@ class BC(OfflineSAC):
             self._n_updates += 1
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/actor_loss", float(np.mean(losses)))
+
+
+def _refuse_sac_keywords(keywords: dict[str, Any]) -> None:
+    """One line for keywords BC does not take: SAC's that configure what BC does not train, or unknown ones."""
+    sac = set(inspect.signature(SAC.__init__).parameters)
+    names = ", ".join(sorted(keywords))
+    if set(keywords) <= sac:
+        raise TypeError(f"BC does not take {names}: BC trains its actor on the data's actions, without SAC's critics, "
+                        f"entropy coefficient or interaction with the env (CQL takes them)")  # fmt: skip
+    raise TypeError(f"BC got unexpected keyword arguments: {names}")

@@ -1,6 +1,12 @@
 """What the offline algorithms share: SAC's networks trained from a dataset instead of an env, and fine-tuned online."""
 
-from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer, ReturnToGoSamples, returns_to_go
+from sb3_cql.common.buffers import (
+    MixedReplayBuffer,
+    ReturnToGoReplayBuffer,
+    ReturnToGoSamples,
+    returns_to_go,
+    with_n_step_returns,
+)
 from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
 
 __all__ = [
@@ -10,4 +16,5 @@ __all__ = [
     "ReturnToGoSamples",
     "behaviour_cloning_loss",
     "returns_to_go",
+    "with_n_step_returns",
 ]

@@ -1,21 +1,38 @@
 """Replay buffers of offline training and online fine-tuning: one that also holds each transition's discounted
 return-to-go, for calibrated CQL (Cal-QL), and one that keeps the offline data beside the online transitions and
-samples a set fraction of every batch from each (RLPD)."""
+samples a set fraction of every batch from each (RLPD). Both sample SB3's n-step returns (``NStepReplayBuffer``)
+when their buffers do."""
 
 from __future__ import annotations
 
+import copy
 from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.buffers import BaseBuffer, ReplayBuffer
+from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 
+def with_n_step_returns(buffer: ReplayBuffer, n_steps: int, gamma: float) -> ReplayBuffer:
+    """``buffer`` sampling SB3's ``n_steps``-step returns: for ``n_steps`` > 1, a plain ``ReplayBuffer``'s transitions
+    (its arrays, shared, not copied) in an ``NStepReplayBuffer``; any other buffer (already n-step, or of a class of
+    its own) as it is, as SB3 takes a custom ``replay_buffer_class``."""
+    if n_steps <= 1 or type(buffer) is not ReplayBuffer:
+        return buffer
+    if buffer.optimize_memory_usage:
+        raise ValueError("n-step returns do not support a buffer with optimize_memory_usage (SB3's NStepReplayBuffer)")
+    n_step = NStepReplayBuffer.__new__(NStepReplayBuffer)
+    n_step.__dict__.update(buffer.__dict__)
+    n_step.n_steps, n_step.gamma = n_steps, gamma
+    return n_step
+
+
 class ReturnToGoSamples(NamedTuple):
     """SB3's ``ReplayBufferSamples`` and the return-to-go of each sampled state (``-inf`` where its episode has not
-    ended yet)."""
+    ended yet). ``rewards``, ``dones`` and ``discounts`` are SB3's n-step ones when the buffer samples n-step
+    returns (``discounts`` is ``None`` for one-step samples, as SB3's)."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -23,6 +40,7 @@ class ReturnToGoSamples(NamedTuple):
     dones: th.Tensor
     rewards: th.Tensor
     returns_to_go: th.Tensor
+    discounts: th.Tensor | None = None
 
 
 def returns_to_go(rewards: np.ndarray, truncated: bool, gamma: float) -> np.ndarray:
@@ -48,43 +66,69 @@ def returns_to_go(rewards: np.ndarray, truncated: bool, gamma: float) -> np.ndar
     return result
 
 
-class ReturnToGoReplayBuffer(ReplayBuffer):
-    """SB3's ``ReplayBuffer`` with the discounted return-to-go of every stored state, under the critics' reward
-    transform ``reward_scale * reward + reward_bias`` (:func:`returns_to_go`). Samples are
-    :class:`ReturnToGoSamples`.
+class ReturnToGoReplayBuffer(NStepReplayBuffer):
+    """SB3's ``ReplayBuffer`` (its ``NStepReplayBuffer`` with ``n_steps`` > 1) with the discounted return-to-go of
+    every stored state, under the critics' reward transform ``reward_scale * reward + reward_bias``
+    (:func:`returns_to_go`). Samples are :class:`ReturnToGoSamples`: SB3's samples (one-step, or n-step returns with
+    their ``discounts``) and the return-to-go of each sampled state, which is the whole episode's from that state
+    whatever ``n_steps`` is.
 
     Transitions added one step at a time (online interaction) get their returns-to-go when their episode ends
     (``done``, a termination or, with ``TimeLimit.truncated`` in its info, a truncation); until then they read as
     ``-inf``. A buffer filled in bulk (:meth:`from_replay_buffer`, or by writing its arrays) gets them from
-    :meth:`compute_returns_to_go`.
+    :meth:`compute_returns_to_go`. It holds the transitions of one env (``n_envs=1``): SB3's sampling draws the env
+    of each sample inside ``_get_samples``, where the return-to-go could not follow it.
 
     :param gamma: discount factor.
+    :param n_steps: steps of SB3's n-step returns in the samples (1: one-step samples, as ``ReplayBuffer``'s).
     :param reward_scale: the critics' reward scale.
     :param reward_bias: the critics' reward bias.
     :param args: ``ReplayBuffer``'s (``buffer_size``, ``observation_space``, ``action_space``, ...).
     :param kwargs: ``ReplayBuffer``'s.
     """
 
+    #: Buffers pickled before n-step samples were supported sample one-step returns.
+    n_steps: int = 1
+
     def __init__(
-        self, *args: Any, gamma: float = 0.99, reward_scale: float = 1.0, reward_bias: float = 0.0, **kwargs: Any
+        self,
+        *args: Any,
+        gamma: float = 0.99,
+        n_steps: int = 1,
+        reward_scale: float = 1.0,
+        reward_bias: float = 0.0,
+        **kwargs: Any,
     ) -> None:
-        super().__init__(*args, **kwargs)
-        if self.optimize_memory_usage:
+        if kwargs.get("optimize_memory_usage"):
             raise ValueError("ReturnToGoReplayBuffer does not support optimize_memory_usage")
-        self.gamma, self.reward_scale, self.reward_bias = gamma, reward_scale, reward_bias
+        super().__init__(*args, n_steps=n_steps, gamma=gamma, **kwargs)
+        if self.n_envs != 1:
+            raise ValueError(f"ReturnToGoReplayBuffer holds the transitions of one env (n_envs=1), got n_envs={self.n_envs}")
+        if n_steps < 1:
+            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+        self.reward_scale, self.reward_bias = reward_scale, reward_bias
         self.returns_to_go = np.full((self.buffer_size, self.n_envs), -np.inf, dtype=np.float32)
         self.episode_starts = np.zeros(self.n_envs, dtype=np.int64)  # where each env's running episode began
 
     @classmethod
     def from_replay_buffer(
-        cls, buffer: ReplayBuffer, gamma: float, reward_scale: float = 1.0, reward_bias: float = 0.0
+        cls,
+        buffer: ReplayBuffer,
+        gamma: float,
+        reward_scale: float = 1.0,
+        reward_bias: float = 0.0,
+        n_steps: int | None = None,
     ) -> ReturnToGoReplayBuffer:
         """A buffer holding ``buffer``'s transitions (its arrays, shared, not copied) and their returns-to-go.
-        Episodes are delimited by ``dones`` and ``timeouts``; a last episode without an end gets ``-inf``."""
+        Episodes are delimited by ``dones`` and ``timeouts``; a last episode without an end gets ``-inf``.
+        ``n_steps`` is ``buffer``'s own (1 for a plain ``ReplayBuffer``) unless given."""
         if buffer.optimize_memory_usage:
             raise ValueError("ReturnToGoReplayBuffer does not support optimize_memory_usage")
+        if buffer.n_envs != 1:
+            raise ValueError(f"ReturnToGoReplayBuffer holds the transitions of one env (n_envs=1), got n_envs={buffer.n_envs}")
         upgraded = cls.__new__(cls)
         upgraded.__dict__.update(buffer.__dict__)
+        upgraded.n_steps = n_steps if n_steps is not None else getattr(buffer, "n_steps", 1)
         upgraded.gamma, upgraded.reward_scale, upgraded.reward_bias = gamma, reward_scale, reward_bias
         upgraded.returns_to_go = np.full((buffer.buffer_size, buffer.n_envs), -np.inf, dtype=np.float32)
         upgraded.episode_starts = np.zeros(buffer.n_envs, dtype=np.int64)
@@ -129,17 +173,10 @@ class ReturnToGoReplayBuffer(ReplayBuffer):
         self.returns_to_go[rows, env] = returns_to_go(rewards, truncated, self.gamma)
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReturnToGoSamples:
-        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
-        data = (
-            self._normalize_obs(self.observations[batch_inds, env_indices, :], env),
-            self.actions[batch_inds, env_indices, :],
-            self._normalize_obs(self.next_observations[batch_inds, env_indices, :], env),
-            # As SB3's: a timeout is not a termination for the backup.
-            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
-            self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
-            self.returns_to_go[batch_inds, env_indices].reshape(-1, 1),
-        )
-        return ReturnToGoSamples(*tuple(map(self.to_torch, data)))
+        # One-step samples are ReplayBuffer's own (SB3 uses NStepReplayBuffer for n_steps > 1 only).
+        base = ReplayBuffer._get_samples(self, batch_inds, env) if self.n_steps == 1 else super()._get_samples(batch_inds, env)
+        returns = self.to_torch(self.returns_to_go[batch_inds, 0].reshape(-1, 1))
+        return ReturnToGoSamples(*base[:5], returns_to_go=returns, discounts=base.discounts)
 
     def start_new_episodes(self) -> None:
         """The next :meth:`add` starts a new episode in every env: an episode left unfinished (the env was reset, as
@@ -147,16 +184,28 @@ class ReturnToGoReplayBuffer(ReplayBuffer):
         self.episode_starts[:] = self.pos
 
 
+#: What a :class:`MixedReplayBuffer` reads and writes as its online part's: SB3's ``ReplayBuffer`` attributes.
+ONLINE_ATTRIBUTES = (
+    "buffer_size", "observation_space", "action_space", "obs_shape", "action_dim", "n_envs", "pos", "full",
+    "observations", "next_observations", "actions", "rewards", "dones", "timeouts", "optimize_memory_usage",
+    "handle_timeout_termination",
+)  # fmt: skip
+
+
 class MixedReplayBuffer(ReplayBuffer):
-    """Offline data and online transitions side by side, sampled as RLPD does (Ball et al. 2023,
+    r"""Offline data and online transitions side by side, sampled as RLPD does (Ball et al. 2023,
     https://arxiv.org/abs/2302.02948): :meth:`add` stores in the ``online`` part, and every batch draws
     ``round(online_fraction * batch_size)`` samples from it (none while it is empty) and the rest from the ``offline``
     part. RLPD's symmetric sampling is ``online_fraction=0.5``.
 
     The two parts are buffers of the same class (``ReplayBuffer``, or :class:`ReturnToGoReplayBuffer` for calibrated
-    CQL, whose online episodes get their returns-to-go when they end). Pickled (``save_replay_buffer``, a
-    checkpoint's buffer), it keeps the online transitions only, up to the filled size: the offline data come back
-    from their dataset (``offline`` is ``None`` until :meth:`set_offline`).
+    CQL, whose online episodes get their returns-to-go when they end), of SB3's n-step returns if they are
+    ``NStepReplayBuffer``\ s. As a ``ReplayBuffer`` it is the online part, where :meth:`add` writes: its arrays
+    (``observations``, ``actions``, ...), ``pos``, ``full`` and ``buffer_size`` are the online part's, while
+    :meth:`size` and :meth:`sample` count both parts. Pickled (``save_replay_buffer``, a checkpoint's buffer), it keeps
+    the online transitions only, up to the filled size: the offline data come back from their dataset (``offline`` is
+    ``None`` until :meth:`set_offline`; :meth:`~sb3_cql.common.OfflineSAC.load_replay_buffer` puts the model's in).
+    ``copy.deepcopy`` copies both parts.
 
     :param offline: the offline data.
     :param online: the empty (or resumed) buffer of online transitions; its ``buffer_size`` is their capacity.
@@ -166,11 +215,9 @@ class MixedReplayBuffer(ReplayBuffer):
     def __init__(self, offline: ReplayBuffer | None, online: ReplayBuffer, online_fraction: float = 0.5) -> None:
         if not 0.0 <= online_fraction <= 1.0:
             raise ValueError(f"online_fraction must be in [0, 1], got {online_fraction}")
-        BaseBuffer.__init__(self, online.buffer_size, online.observation_space, online.action_space, online.device,
-                            online.n_envs)  # fmt: skip
+        # ReplayBuffer's __init__ would allocate arrays of its own: its attributes are the online part's instead.
         self.online, self.online_fraction, self.offline = online, online_fraction, None
-        self.optimize_memory_usage = False
-        self.handle_timeout_termination = online.handle_timeout_termination
+        self.device = online.device
         if offline is not None:
             self.set_offline(offline)
 
@@ -222,6 +269,12 @@ class MixedReplayBuffer(ReplayBuffer):
         if isinstance(self.online, ReturnToGoReplayBuffer):
             self.online.start_new_episodes()
 
+    def __deepcopy__(self, memo: dict[int, Any]) -> MixedReplayBuffer:
+        duplicate = type(self).__new__(type(self))
+        memo[id(self)] = duplicate
+        duplicate.__dict__.update(copy.deepcopy(self.__dict__, memo))  # both parts, unlike pickling
+        return duplicate
+
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state["offline"] = None
@@ -244,3 +297,17 @@ class MixedReplayBuffer(ReplayBuffer):
         state["online"] = online_class.__new__(online_class)
         state["online"].__dict__.update(online)
         self.__dict__.update(state)
+
+
+def _online_attribute(name: str) -> property:
+    def get(self: MixedReplayBuffer) -> Any:
+        return getattr(self.online, name)
+
+    def set_(self: MixedReplayBuffer, value: Any) -> None:
+        setattr(self.online, name, value)
+
+    return property(get, set_, doc=f"The online part's ``{name}``.")
+
+
+for _name in ONLINE_ATTRIBUTES:
+    setattr(MixedReplayBuffer, _name, _online_attribute(_name))

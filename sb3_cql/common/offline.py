@@ -7,13 +7,12 @@ import io
 import os
 import time
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
-from minari import MinariDataset
 from stable_baselines3 import SAC
-from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
@@ -21,9 +20,11 @@ from stable_baselines3.common.utils import FloatSchedule
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
-from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer, with_n_step_returns
 from sb3_cql.common.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
-from sb3_cql.data import ensure_dataset, fill_replay_buffer
+
+if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard dataset's collection: neither on import.
+    from minari import MinariDataset
 
 SelfOfflineSAC = TypeVar("SelfOfflineSAC", bound="OfflineSAC")
 
@@ -95,6 +96,7 @@ class OfflineSAC(SAC):
     ) -> None:
         if online_fraction is not None and not 0.0 <= online_fraction <= 1.0:
             raise ValueError(f"online_fraction must be None (offline training) or in [0, 1], got {online_fraction}")
+        _refuse_unsupported(kwargs)
         self.dataset = dataset
         self.online_fraction = online_fraction
         self.online_buffer_size = online_buffer_size
@@ -103,7 +105,7 @@ class OfflineSAC(SAC):
         self.normalize_observations = normalize_observations
         self._fill_on_setup = True  # load() turns it off: a loaded model does not reload its data
         policy_kwargs = dict(policy_kwargs or {})
-        if normalize_observations and policy in ("MlpPolicy", MlpPolicy):
+        if normalize_observations and policy in ("MlpPolicy", self.policy_aliases["MlpPolicy"]):
             policy_kwargs.setdefault("features_extractor_class", NormalizedFlatten)
         super().__init__(
             policy,
@@ -125,17 +127,32 @@ class OfflineSAC(SAC):
             self.dataset = self.dataset if isinstance(self.dataset, str) else None  # never pickle data into a model
 
     def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        """The replay buffer from ``dataset``: a given buffer as it is (viewed with SB3's n-step returns for
+        ``n_steps`` > 1), a Minari dataset (or id, collected first if it is a missing standard one) loaded into a buffer
+        of ``replay_buffer_class`` (SB3's choice: ``NStepReplayBuffer`` for ``n_steps`` > 1); then the observation
+        statistics of ``normalize_observations``."""
         if isinstance(dataset, ReplayBuffer):
             if dataset.obs_shape != self.observation_space.shape or dataset.action_dim != self.action_space.shape[0]:
                 raise ValueError(
                     f"the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) do not "
                     f"match the env's {self.observation_space.shape} and {self.action_space.shape}"
                 )
-            self.replay_buffer = dataset
+            self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma)
         else:
+            from sb3_cql.data.replay import fill_replay_buffer
+
             if isinstance(dataset, str):
+                from sb3_cql.data.collection import ensure_dataset  # the tasks load only to collect a standard dataset
+
                 dataset = ensure_dataset(dataset)
-            self.replay_buffer = fill_replay_buffer(dataset, self.observation_space, self.action_space, device=self.device)
+            self.replay_buffer = fill_replay_buffer(
+                dataset,
+                self.observation_space,
+                self.action_space,
+                device=self.device,
+                replay_buffer_class=self.replay_buffer_class,
+                replay_buffer_kwargs=self.replay_buffer_kwargs,
+            )
         size = self.replay_buffer.size()
         if size == 0:
             raise ValueError("the dataset holds no transitions")
@@ -244,8 +261,10 @@ class OfflineSAC(SAC):
     def _empty_buffer_like(self, buffer: ReplayBuffer) -> ReplayBuffer:
         """An empty buffer of ``online_buffer_size`` of ``buffer``'s class and settings, for this model's env."""
         kwargs: dict[str, Any] = {}
+        if isinstance(buffer, NStepReplayBuffer):
+            kwargs = {"gamma": buffer.gamma, "n_steps": buffer.n_steps}
         if isinstance(buffer, ReturnToGoReplayBuffer):
-            kwargs = {"gamma": buffer.gamma, "reward_scale": buffer.reward_scale, "reward_bias": buffer.reward_bias}
+            kwargs.update(reward_scale=buffer.reward_scale, reward_bias=buffer.reward_bias)
         return type(buffer)(
             self.online_buffer_size,
             self.observation_space,
@@ -278,6 +297,16 @@ class OfflineSAC(SAC):
         finally:
             partial.unlink(missing_ok=True)
 
+    def load_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
+        """SB3's. A fine-tuning buffer comes back with its online transitions only: the offline data this model holds
+        stay under it (else :meth:`learn` reloads them from the dataset id)."""
+        offline = self.replay_buffer.offline if isinstance(self.replay_buffer, MixedReplayBuffer) else self.replay_buffer
+        super().load_replay_buffer(path, truncate_last_traj)
+        loaded = self.replay_buffer
+        keeps = offline is not None and offline.size() >= self.batch_size
+        if isinstance(loaded, MixedReplayBuffer) and loaded.offline is None and keeps and type(offline) is type(loaded.online):
+            loaded.set_offline(offline)
+
     @classmethod
     def load(cls, path, env=None, device="auto", custom_objects=None, print_system_info=False, force_reset=True, **kwargs):
         """SB3's ``load``, without the training data: the replay buffer holds one transition (unless ``buffer_size``
@@ -289,3 +318,20 @@ class OfflineSAC(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "actor_lr_schedule", "_fill_on_setup"]
+
+
+#: SAC's keywords that an offline algorithm refuses, with why: ``(keyword, the value it accepts, the reason)``.
+UNSUPPORTED_SAC_KEYWORDS = (
+    ("use_sde", False, "gSDE explores by sampling noise matrices for rollouts; the conservative term and the warm start "
+     "draw the policy's actions without it"),
+    ("use_sde_at_warmup", False, "gSDE is not supported (use_sde)"),
+    ("optimize_memory_usage", False, "the offline data keep each transition's next observation: an episode's last "
+     "observation is not the next episode's first"),
+)  # fmt: skip
+
+
+def _refuse_unsupported(kwargs: dict[str, Any]) -> None:
+    """One line for a SAC keyword set to a value an offline algorithm cannot honour."""
+    for keyword, accepted, reason in UNSUPPORTED_SAC_KEYWORDS:
+        if kwargs.get(keyword, accepted) != accepted:
+            raise ValueError(f"{keyword}={kwargs[keyword]!r} is not supported: {reason}")

@@ -3,21 +3,22 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch as th
-from minari import MinariDataset
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, Schedule
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
-from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from torch.nn import functional as F
 
 from sb3_cql.common import OfflineSAC, ReturnToGoReplayBuffer, behaviour_cloning_loss
-from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
+from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLCritic, MlpPolicy, MultiInputPolicy
+
+if TYPE_CHECKING:
+    from minari import MinariDataset
 
 #: Bound of the learned Lagrange multiplier, as in the reference implementation.
 MAX_ALPHA_PRIME = 1e6
@@ -47,10 +48,14 @@ class CQL(OfflineSAC):
     ``save``/``load``. With ``online_fraction``, :meth:`learn` fine-tunes online, the dataset kept in the buffer
     (the same loss; ``cql_calibrated`` gives new episodes their returns-to-go when they end).
 
+    ``n_steps`` (SB3's n-step returns): the TD target bootstraps after up to ``n_steps`` steps of the data's episode
+    with the samples' ``discounts``, as SAC's (the critics' rewards summed over those steps, :meth:`critic_rewards`).
+
     Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
     learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere.
 
-    :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
+    :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with CQL's
+        actor and critic passes, :mod:`sb3_cql.cql.policies`).
     :param env: the environment (for its spaces, and the default evaluation env).
     :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
         ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`). A missing standard
@@ -106,15 +111,32 @@ class CQL(OfflineSAC):
     :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
     :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's; ``-1``: as many as env steps).
     :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``, as SAC's and TD3's).
+    :param replay_buffer_class: the class of the replay buffer the data load into (SAC's; by default SB3's choice,
+        ``NStepReplayBuffer`` for ``n_steps`` > 1).
+    :param replay_buffer_kwargs: keywords of that class (SAC's).
+    :param optimize_memory_usage: SAC's; only ``False`` (the offline data keep each transition's next observation).
+    :param n_steps: SB3's n-step returns: the TD target sums up to ``n_steps`` rewards within an episode and
+        bootstraps with ``gamma`` to the power of the steps summed (a termination ends the sum and the bootstrap, a
+        truncation ends the sum and bootstraps). ``1`` (the default): one-step backups.
     :param deterministic_rollouts: when fine-tuning, act with the deterministic action plus ``action_noise`` (TD3's
         exploration) instead of a sample of the policy (SAC's).
+    :param stats_window_size: episodes averaged in the rollout logs when fine-tuning (SAC's).
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
     :param verbose: 0 silent, 1 training logs, 2 debug.
     :param seed: seed of the random generators.
     :param device: torch device.
+    :param use_sde: SAC's gSDE: only ``False`` (the conservative term samples the policy without it).
+    :param sde_sample_freq: SAC's; unused without gSDE.
+    :param use_sde_at_warmup: SAC's; only ``False``.
     :param _init_setup_model: build the networks now.
     """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "CnnPolicy": CnnPolicy,
+        "MultiInputPolicy": MultiInputPolicy,
+    }
 
     def __init__(
         self,
@@ -150,13 +172,23 @@ class CQL(OfflineSAC):
         gradient_steps: int = 1,
         action_noise: ActionNoise | None = None,
         deterministic_rollouts: bool = False,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        n_steps: int = 1,
+        stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
         seed: int | None = None,
         device: th.device | str = "auto",
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        use_sde_at_warmup: bool = False,
         _init_setup_model: bool = True,
     ) -> None:
+        if n_steps > 1 and reward_bias != 0 and gamma >= 1:
+            raise ValueError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
         if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0 or not actor_bc_weight >= 0:
             raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0, cql_alpha >= 0 and actor_bc_weight >= 0")
         self.cql_alpha = cql_alpha
@@ -186,6 +218,14 @@ class CQL(OfflineSAC):
             learning_starts=learning_starts,
             action_noise=action_noise,
             deterministic_rollouts=deterministic_rollouts,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            n_steps=n_steps,
+            stats_window_size=stats_window_size,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            use_sde_at_warmup=use_sde_at_warmup,
             policy_kwargs=policy_kwargs,
             batch_size=batch_size,
             train_freq=train_freq,
@@ -203,6 +243,8 @@ class CQL(OfflineSAC):
         )
 
     def _setup_model(self) -> None:
+        # A model saved with SAC's policy classes loads into CQL's (the same parameters).
+        self.policy_class = FROM_SAC.get(self.policy_class, self.policy_class)  # type: ignore[arg-type]
         super()._setup_model()
         if self.cql_calibrated and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
             self._calibrate_buffer()
@@ -223,8 +265,12 @@ class CQL(OfflineSAC):
         )
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        """SAC's update with the conservative term added to the critic loss (and, with ``cql_target_action_gap``,
-        a dual step on the Lagrange multiplier)."""
+        """SAC's ``train()`` with the conservative term added to the critic loss. Each variant of the update is one
+        hook, overridable by a subclass: :meth:`compute_target` (SB3's n-step ``discounts``, the critics' rewards,
+        :meth:`next_state_values` with the max backup), :meth:`conservative_gaps` (Cal-QL in
+        :meth:`calibrate_policy_values`), :meth:`conservative_loss` (the Lagrange multiplier), :meth:`check_critic_loss`
+        (divergence) and :meth:`compute_actor_loss` (SAC's, or the warm start's :meth:`warm_start_actor_loss`, with
+        the imitation anchor of :meth:`anchor_actor_loss`)."""
         self.policy.set_training_mode(True)
         optimizers = [self.critic.optimizer]
         optimizers += [opt for opt in (self.ent_coef_optimizer, self.alpha_prime_optimizer) if opt is not None]
@@ -235,14 +281,17 @@ class CQL(OfflineSAC):
         logs: dict[str, list[float]] = {}
 
         for _ in range(gradient_steps):
-            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            # For n-step replay, the discount of the bootstrap is gamma ** (steps summed), as SAC's.
+            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+
             # The actor runs once on s and once on s' per step; every sample below is drawn from these parameters
             # (the actor changes only at the end of the step).
-            policy = self.actor.get_action_dist_params(data.observations)[:2]
+            policy = self.actor.get_action_dist_params(replay_data.observations)[:2]
             actions_pi, log_prob = self.actor.action_dist.log_prob_from_params(*policy)
             log_prob = log_prob.reshape(-1, 1)
             with th.no_grad():
-                next_policy = self.actor.get_action_dist_params(data.next_observations)[:2]
+                next_policy = self.actor.get_action_dist_params(replay_data.next_observations)[:2]
 
             ent_coef_loss = None
             if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
@@ -257,48 +306,19 @@ class CQL(OfflineSAC):
             _append(logs, "train/ent_coef", ent_coef.item())
 
             with th.no_grad():
-                rewards = self.reward_scale * data.rewards + self.reward_bias
-                next_q_values = self._next_q_values(data.next_observations, next_policy, ent_coef)
-                target_q_values = rewards + (1 - data.dones) * self.gamma * next_q_values
+                target_q_values = self.compute_target(replay_data, next_policy, ent_coef, discounts)
 
             detached_policy = (policy[0].detach(), policy[1].detach())
-            current_q_values, conservative, diagnostics = self._q_values_and_conservative_terms(
-                data, detached_policy, next_policy
-            )
+            current_q_values, gaps = self.conservative_gaps(replay_data, detached_policy, next_policy, logs)
             td_loss = 0.5 * sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
-            conservative_loss = self._conservative_loss(conservative, logs)
+            conservative_loss = self.conservative_loss(gaps, logs)
             critic_loss = td_loss + conservative_loss
-            critic_loss_value = critic_loss.item()
-            if not math.isfinite(critic_loss_value):
-                raise TrainingDivergedError(
-                    f"CQL's critic loss is {critic_loss_value} at gradient step {self.num_timesteps + 1}: training "
-                    f"diverged (try a lower learning_rate, reward scaling or cql_target_action_gap)"
-                )
+            critic_loss_value = self.check_critic_loss(critic_loss)
             self.critic.optimizer.zero_grad()
             critic_loss.backward()
             self.critic.optimizer.step()
 
-            if self._in_warm_start():
-                # Behaviour-cloning warm start: in SAC's actor loss, imitation in place of Q. The deterministic action
-                # is fitted by least squares (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by likelihood is biased
-                # when data actions saturate at +-1, as the gripper's do); the spread is SAC's, set by the entropy
-                # term against the target entropy, and trains the log-std head only: through the shared layers it
-                # moved the mean enough to break a working grasp within a few hundred steps. (A likelihood of the data
-                # actions for the spread made the policy's samples bang-bang on the noisy data, whose clipped actions
-                # often sit at +-1; the conservative term then kept Q at the policy's samples tens below Q at the data
-                # actions, and the backup carried that gap into every Q-value: docs/findings.md.)
-                mean_actions, log_std = self._imitation_dist_params(data.observations)
-                _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std)
-                actor_loss = (ent_coef * spread_log_prob).mean() + behaviour_cloning_loss(mean_actions, data.actions)
-            else:
-                q_values_pi = th.cat(self.critic(data.observations, actions_pi), dim=1)
-                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
-                actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
-                if self.actor_bc_weight > 0:
-                    # TD3+BC's anchor: the Q term on a scale of 1 whatever the rewards, plus imitation of the data.
-                    bc_loss = behaviour_cloning_loss(policy[0], data.actions)
-                    _append(logs, "train/actor_bc_loss", bc_loss.item())
-                    actor_loss = actor_loss / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
+            actor_loss = self.compute_actor_loss(replay_data, policy, actions_pi, log_prob, ent_coef, logs)
             self.actor.optimizer.zero_grad()
             actor_loss.backward()
             self.actor.optimizer.step()
@@ -312,43 +332,49 @@ class CQL(OfflineSAC):
             _append(logs, "train/actor_loss", actor_loss.item())
             _append(logs, "train/cql_td_loss", td_loss.item())
             _append(logs, "train/cql_loss", conservative_loss.item())
-            for key, value in diagnostics.items():
-                _append(logs, key, value)
 
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         for key, values in logs.items():
             self.logger.record(key, float(np.mean(values)))
 
-    def _in_warm_start(self) -> bool:
-        """Whether the next gradient step is one of the first ``bc_steps`` of the model's training. Counted in gradient
-        steps made (``_n_updates``, saved with the model), not ``num_timesteps``: RL-Zoo3 continues a saved model
-        (``-i``) with the count of timesteps restarted at 0."""
-        return self._n_updates < self.bc_steps
+    # The TD target.
 
-    def _actor_learning_rate(self) -> float:
-        """The actor's schedule, or during the warm start the linear decay from ``bc_learning_rate`` to it."""
-        learning_rate = self.actor_lr_schedule(self._current_progress_remaining)
-        if self.bc_learning_rate is None or not self._in_warm_start():
-            return learning_rate
-        fraction = self._n_updates / self.bc_steps
-        return self.bc_learning_rate + fraction * (learning_rate - self.bc_learning_rate)
+    def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
+        """The rewards the critics learn from, ``reward_scale * reward + reward_bias`` at every step; for an n-step
+        sample (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the
+        rewards: ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
+        if replay_data.discounts is None:
+            return self.reward_scale * replay_data.rewards + self.reward_bias
+        steps_discount = (1.0 - replay_data.discounts) / (1.0 - self.gamma)
+        return self.reward_scale * replay_data.rewards + self.reward_bias * steps_discount
 
-    def _imitation_dist_params(self, observations: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """The actor's mean actions and log-std (``Actor.get_action_dist_params``), with the log-std head fed the
-        shared layers' output detached: gradients of the log-std reach that head only."""
-        features = self.actor.extract_features(observations, self.actor.features_extractor)
-        latent_pi = self.actor.latent_pi(features)
-        log_std = th.clamp(self.actor.log_std(latent_pi.detach()), LOG_STD_MIN, LOG_STD_MAX)
-        return self.actor.mu(latent_pi), log_std
+    def compute_target(
+        self,
+        replay_data: ReplayBufferSamples,
+        next_policy: tuple[th.Tensor, th.Tensor],
+        ent_coef: th.Tensor,
+        discounts: th.Tensor | float,
+    ) -> th.Tensor:
+        """SAC's TD target, ``rewards + (1 - dones) * discounts * V(s')``, with the critics' rewards
+        (:meth:`critic_rewards`) and :meth:`next_state_values`. ``discounts`` are the samples' (SB3's n-step returns)
+        or ``gamma``.
 
-    def _next_q_values(
+        :param replay_data: the batch.
+        :param next_policy: the actor's (mean actions, log-std) at the batch's next observations.
+        :param ent_coef: SAC's entropy coefficient.
+        :param discounts: the discount of each sample's bootstrap.
+        """
+        next_q_values = self.next_state_values(replay_data.next_observations, next_policy, ent_coef)
+        return self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_q_values
+
+    def next_state_values(
         self, next_observations: th.Tensor, next_policy: tuple[th.Tensor, th.Tensor], ent_coef: th.Tensor
     ) -> th.Tensor:
         """The soft (or, with ``cql_deterministic_backup``, plain) value of the next states under the target critics,
-        for a policy sample (or the best of ``cql_n_actions`` with ``cql_max_backup``) from ``next_policy``'s
+        for a policy sample (or, with ``cql_max_backup``, the best of ``cql_n_actions``) from ``next_policy``'s
         (mean actions, log-std)."""
         n_samples = self.cql_n_actions if self.cql_max_backup else 1
-        next_actions, next_log_prob = self._sample_actions(*next_policy, n_samples)
+        next_actions, next_log_prob = self.sample_policy_actions(*next_policy, n_samples)
         if n_samples > 1:
             next_observations = next_observations.repeat_interleave(n_samples, dim=0)
         next_q_values = th.cat(self.critic_target(next_observations, next_actions), dim=1)
@@ -359,20 +385,30 @@ class CQL(OfflineSAC):
             next_q_values = next_q_values.reshape(-1, n_samples).max(dim=1, keepdim=True).values
         return next_q_values
 
-    def _q_values_and_conservative_terms(
-        self, data, policy: tuple[th.Tensor, th.Tensor], next_policy: tuple[th.Tensor, th.Tensor]
-    ) -> tuple[list[th.Tensor], list[th.Tensor], dict[str, float]]:
-        """Q on the data actions and each critic's ``logsumexp - Q(data)`` gap, from one critic forward pass over the
-        data actions and the ``3 * cql_n_actions`` sampled actions of every state (the policy's, drawn from its
-        (mean actions, log-std) at s and at s')."""
-        batch_size, n = data.observations.shape[0], self.cql_n_actions
+    # The conservative term.
+
+    def conservative_gaps(
+        self,
+        replay_data: ReplayBufferSamples,
+        policy: tuple[th.Tensor, th.Tensor],
+        next_policy: tuple[th.Tensor, th.Tensor],
+        logs: dict[str, list[float]],
+    ) -> tuple[list[th.Tensor], list[th.Tensor]]:
+        """Each critic's Q at the data actions and its gap ``T * logsumexp(Q(s, a) / T) - Q(s, a_data)``, from one
+        critic pass (:meth:`~sb3_cql.cql.policies.CQLCritic.forward_fused`) over the data actions and the
+        ``3 * cql_n_actions`` sampled actions of every state: uniform, the policy's at s and the policy's at s' (drawn
+        from the (mean actions, log-std) ``policy`` and ``next_policy``), importance-weighted by their densities;
+        the policy groups go through :meth:`calibrate_policy_values`. Logs ``train/cql_q_*`` and ``train/cql_gap``."""
+        observations = replay_data.observations
+        batch_size, n = observations.shape[0], self.cql_n_actions
         action_dim = self.action_space.shape[0]
         with th.no_grad():
             random_actions = th.empty(batch_size * n, action_dim, device=self.device).uniform_(-1.0, 1.0)
-            policy_actions, policy_log_prob = self._sample_actions(*policy, n)
-            next_policy_actions, next_policy_log_prob = self._sample_actions(*next_policy, n)
-        observations = th.cat([data.observations, data.observations.repeat_interleave(n, dim=0).repeat(3, 1)])
-        actions = th.cat([data.actions, random_actions, policy_actions, next_policy_actions])
+            policy_actions, policy_log_prob = self.sample_policy_actions(*policy, n)
+            next_policy_actions, next_policy_log_prob = self.sample_policy_actions(*next_policy, n)
+        repeated = observations.repeat_interleave(n, dim=0)
+        all_observations = th.cat([observations, repeated.repeat(3, *[1] * (repeated.dim() - 1))])
+        actions = th.cat([replay_data.actions, random_actions, policy_actions, next_policy_actions])
         # Importance weights: uniform density (1/2)^|A| on [-1, 1]^|A|, the policy's own density otherwise.
         log_densities = th.cat(
             [
@@ -382,53 +418,36 @@ class CQL(OfflineSAC):
             ],
             dim=1,
         )
-        current_q_values, gaps, diagnostics = [], [], {}
-        for index, q_values in enumerate(self._critic_q_values(observations, actions), start=1):
+        current_q_values, gaps = [], []
+        for index, q_values in enumerate(self._critic_pass(all_observations, actions), start=1):
             q_data = q_values[:batch_size]
-            sampled = q_values[batch_size:].reshape(3, batch_size, n)
-            raw_sampled = sampled
-            if self.cql_calibrated:
-                # Cal-QL: the policy's values are pushed down no further than the data's return-to-go.
-                bound = data.returns_to_go
-                sampled = th.cat([sampled[:1], th.maximum(sampled[1:], bound)])
+            raw_sampled = q_values[batch_size:].reshape(3, batch_size, n)
+            sampled = th.cat([raw_sampled[:1], self.calibrate_policy_values(raw_sampled[1:], replay_data)])
             importance_weighted = th.cat(list(sampled), dim=1) - log_densities
             logsumexp = th.logsumexp(importance_weighted / self.cql_temperature, dim=1) * self.cql_temperature
             current_q_values.append(q_data)
             gaps.append(logsumexp.mean() - q_data.mean())
             if index == 1:
-                diagnostics = {
-                    "train/cql_q_data": q_data.mean().item(),
-                    "train/cql_q_random": raw_sampled[0].mean().item(),
-                    "train/cql_q_policy": raw_sampled[1].mean().item(),
-                    "train/cql_q_next_policy": raw_sampled[2].mean().item(),
-                    "train/cql_gap": gaps[0].item(),
-                }
+                _append(logs, "train/cql_q_data", q_data.mean().item())
+                _append(logs, "train/cql_q_random", raw_sampled[0].mean().item())
+                _append(logs, "train/cql_q_policy", raw_sampled[1].mean().item())
+                _append(logs, "train/cql_q_next_policy", raw_sampled[2].mean().item())
+                _append(logs, "train/cql_gap", gaps[0].item())
                 if self.cql_calibrated:
-                    diagnostics["train/cql_bound_rate"] = (raw_sampled[1:] < bound).float().mean().item()
-        return current_q_values, gaps, diagnostics
+                    rate = (raw_sampled[1:] < replay_data.returns_to_go).float().mean().item()
+                    _append(logs, "train/cql_bound_rate", rate)
+        return current_q_values, gaps
 
-    def _critic_q_values(self, observations: th.Tensor, actions: th.Tensor) -> list[th.Tensor]:
-        """``self.critic(observations, actions)``, through :func:`relu_mlp` when the Q-networks are ReLU MLPs."""
-        networks = [relu_mlp_parameters(q_net) for q_net in self.critic.q_networks]
-        if any(parameters is None for parameters in networks):
-            return list(self.critic(observations, actions))
-        with th.set_grad_enabled(not self.critic.share_features_extractor):
-            features = self.critic.extract_features(observations, self.critic.features_extractor)
-        inputs = th.cat([features, actions], dim=1)
-        return [relu_mlp(inputs, parameters) for parameters in networks]  # type: ignore[arg-type]
+    def calibrate_policy_values(self, q_policy: th.Tensor, replay_data: ReplayBufferSamples) -> th.Tensor:
+        """Cal-QL: with ``cql_calibrated``, the policy's values (``(2, batch, cql_n_actions)``: at s and at s') are
+        pushed down no further than the data's return-to-go, ``max(Q, G(s))``; unchanged otherwise."""
+        if not self.cql_calibrated:
+            return q_policy
+        return th.maximum(q_policy, replay_data.returns_to_go)  # type: ignore[attr-defined]
 
-    def _sample_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, n: int) -> tuple[th.Tensor, th.Tensor]:
-        """``n`` actions per state (state-major order) of the policy whose ``get_action_dist_params`` gave
-        ``mean_actions`` and ``log_std``, and their log-densities.
-
-        Only the sampling is repeated: the same distribution as running the actor on ``n`` copies of each state, at
-        a fraction of the cost. (CQL has no gSDE: SB3 sets the policy's ``use_sde`` from the algorithm's, False.)
-        """
-        mean_actions, log_std = mean_actions.repeat_interleave(n, dim=0), log_std.repeat_interleave(n, dim=0)
-        return self.actor.action_dist.log_prob_from_params(mean_actions, log_std)
-
-    def _conservative_loss(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
-        """``cql_alpha`` times the gaps, or their Lagrangian with a dual step on the multiplier."""
+    def conservative_loss(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
+        """``cql_alpha`` times the gaps; with ``cql_target_action_gap``, their Lagrangian
+        ``alpha' * (cql_alpha * gap - target)`` after a dual step on the multiplier ``alpha'``."""
         terms = [self.cql_alpha * gap for gap in gaps]
         if self.log_alpha_prime is None or self.alpha_prime_optimizer is None:
             return sum(terms)
@@ -441,6 +460,103 @@ class CQL(OfflineSAC):
         _append(logs, "train/cql_alpha_prime", alpha_prime.item())
         _append(logs, "train/cql_alpha_prime_loss", alpha_prime_loss.item())
         return sum(alpha_prime.detach() * (term - self.cql_target_action_gap) for term in terms)
+
+    def check_critic_loss(self, critic_loss: th.Tensor) -> float:
+        """The critic loss as a number; :class:`TrainingDivergedError` if it is NaN or infinite."""
+        value = critic_loss.item()
+        if not math.isfinite(value):
+            raise TrainingDivergedError(
+                f"CQL's critic loss is {value} at gradient step {self.num_timesteps + 1}: training diverged (try a "
+                f"lower learning_rate, reward scaling or cql_target_action_gap)"
+            )
+        return value
+
+    # The actor loss.
+
+    def compute_actor_loss(
+        self,
+        replay_data: ReplayBufferSamples,
+        policy: tuple[th.Tensor, th.Tensor],
+        actions_pi: th.Tensor,
+        log_prob: th.Tensor,
+        ent_coef: th.Tensor,
+        logs: dict[str, list[float]],
+    ) -> th.Tensor:
+        """SAC's actor loss, ``ent_coef * log_prob - min Q(s, a_pi)``, with the anchor of :meth:`anchor_actor_loss`;
+        during the warm start (:meth:`in_warm_start`) :meth:`warm_start_actor_loss` instead.
+
+        :param replay_data: the batch.
+        :param policy: the actor's (mean actions, log-std) at the batch's observations.
+        :param actions_pi: the actor's sampled actions there, ``log_prob`` their log-densities.
+        :param ent_coef: SAC's entropy coefficient.
+        :param logs: the step's logs.
+        """
+        if self.in_warm_start():
+            return self.warm_start_actor_loss(replay_data, ent_coef)
+        q_values_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1)
+        min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
+        actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+        return self.anchor_actor_loss(actor_loss, min_qf_pi, policy[0], replay_data, logs)
+
+    def warm_start_actor_loss(self, replay_data: ReplayBufferSamples, ent_coef: th.Tensor) -> th.Tensor:
+        """The behaviour-cloning warm start's actor loss: in SAC's, imitation in place of Q."""
+        # The deterministic action is fitted by least squares (as sb3_cql.BC: the mean of a tanh-Gaussian fitted by
+        # likelihood is biased when data actions saturate at +-1, as the gripper's do); the spread is SAC's, set by
+        # the entropy term against the target entropy, and trains the log-std head only: through the shared layers it
+        # moved the mean enough to break a working grasp within a few hundred steps. (A likelihood of the data actions
+        # for the spread made the policy's samples bang-bang on the noisy data, whose clipped actions often sit at
+        # +-1; the conservative term then kept Q at the policy's samples tens below Q at the data actions, and the
+        # backup carried that gap into every Q-value: docs/findings.md.)
+        mean_actions, log_std = self.actor.imitation_dist_params(replay_data.observations)
+        _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std)
+        return (ent_coef * spread_log_prob).mean() + behaviour_cloning_loss(mean_actions, replay_data.actions)
+
+    def anchor_actor_loss(
+        self,
+        actor_loss: th.Tensor,
+        min_qf_pi: th.Tensor,
+        mean_actions: th.Tensor,
+        replay_data: ReplayBufferSamples,
+        logs: dict[str, list[float]],
+    ) -> th.Tensor:
+        """With ``actor_bc_weight``, TD3+BC's anchor: SAC's ``actor_loss`` divided by the batch's mean ``|Q|``
+        (detached: the Q term on a scale of 1 whatever the rewards) plus ``actor_bc_weight`` times the imitation of
+        the data by the actor's ``mean_actions``; ``actor_loss`` unchanged without it."""
+        if self.actor_bc_weight <= 0:
+            return actor_loss
+        bc_loss = behaviour_cloning_loss(mean_actions, replay_data.actions)
+        _append(logs, "train/actor_bc_loss", bc_loss.item())
+        return actor_loss / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
+
+    def in_warm_start(self) -> bool:
+        """Whether the next gradient step is one of the first ``bc_steps`` of the model's training. Counted in gradient
+        steps made (``_n_updates``, saved with the model), not ``num_timesteps``: RL-Zoo3 continues a saved model
+        (``-i``) with the count of timesteps restarted at 0."""
+        return self._n_updates < self.bc_steps
+
+    def _actor_learning_rate(self) -> float:
+        """The actor's schedule, or during the warm start the linear decay from ``bc_learning_rate`` to it."""
+        learning_rate = self.actor_lr_schedule(self._current_progress_remaining)
+        if self.bc_learning_rate is None or not self.in_warm_start():
+            return learning_rate
+        fraction = self._n_updates / self.bc_steps
+        return self.bc_learning_rate + fraction * (learning_rate - self.bc_learning_rate)
+
+    def sample_policy_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, n: int) -> tuple[th.Tensor, th.Tensor]:
+        """``n`` actions per state (state-major order) of the policy whose ``get_action_dist_params`` gave
+        ``mean_actions`` and ``log_std``, and their log-densities.
+
+        Only the sampling is repeated: the same distribution as running the actor on ``n`` copies of each state, at
+        a fraction of the cost. (CQL has no gSDE.)
+        """
+        mean_actions, log_std = mean_actions.repeat_interleave(n, dim=0), log_std.repeat_interleave(n, dim=0)
+        return self.actor.action_dist.log_prob_from_params(mean_actions, log_std)
+
+    def _critic_pass(self, observations: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        """The critics on the conservative term's rows: the fused pass of CQL's critic, SAC's forward for another."""
+        if isinstance(self.critic, CQLCritic):
+            return self.critic.forward_fused(observations, actions)
+        return self.critic(observations, actions)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -89,6 +89,8 @@ def fill_replay_buffer(
     action_space: spaces.Box,
     replay_buffer: ReplayBuffer | None = None,
     device: str = "auto",
+    replay_buffer_class: type[ReplayBuffer] | None = None,
+    replay_buffer_kwargs: dict[str, Any] | None = None,
 ) -> ReplayBuffer:
     """Append every transition of ``dataset`` to a ``ReplayBuffer`` and return the buffer.
 
@@ -104,6 +106,10 @@ def fill_replay_buffer(
     :param replay_buffer: a buffer to append to; if it cannot hold its content and the dataset, a larger one
         holding both is returned instead. ``None`` makes one of exactly the dataset's size.
     :param device: the device of a buffer made here.
+    :param replay_buffer_class: the class of a buffer made here (SB3's ``ReplayBuffer`` by default; its
+        ``NStepReplayBuffer`` samples n-step returns within each episode).
+    :param replay_buffer_kwargs: keywords of a buffer made here (``n_steps`` and ``gamma`` of an
+        ``NStepReplayBuffer``).
     """
     from stable_baselines3.common.buffers import ReplayBuffer
 
@@ -116,7 +122,10 @@ def fill_replay_buffer(
     if n_transitions == 0:
         raise DatasetError(f"dataset {name} holds no transitions")
     if replay_buffer is None:
-        replay_buffer = ReplayBuffer(n_transitions, observation_space, action_space, device=device)
+        buffer_class = replay_buffer_class or ReplayBuffer
+        replay_buffer = buffer_class(
+            n_transitions, observation_space, action_space, device=device, **(replay_buffer_kwargs or {})
+        )
     if replay_buffer.n_envs != 1 or replay_buffer.optimize_memory_usage:
         raise ValueError("fill_replay_buffer needs a ReplayBuffer with n_envs=1 and optimize_memory_usage=False")
     if replay_buffer.full:
@@ -182,12 +191,13 @@ _FIELDS = ("observations", "actions", "rewards", "terminations", "truncations")
 
 def _grown(replay_buffer: ReplayBuffer, buffer_size: int) -> ReplayBuffer:
     """A copy of ``replay_buffer`` with room for ``buffer_size`` transitions."""
+    from stable_baselines3.common.buffers import NStepReplayBuffer
+
+    kwargs: dict[str, Any] = {"handle_timeout_termination": replay_buffer.handle_timeout_termination}
+    if isinstance(replay_buffer, NStepReplayBuffer):
+        kwargs.update(n_steps=replay_buffer.n_steps, gamma=replay_buffer.gamma)
     grown = type(replay_buffer)(
-        buffer_size,
-        replay_buffer.observation_space,
-        replay_buffer.action_space,
-        device=replay_buffer.device,
-        handle_timeout_termination=replay_buffer.handle_timeout_termination,
+        buffer_size, replay_buffer.observation_space, replay_buffer.action_space, device=replay_buffer.device, **kwargs
     )
     size = replay_buffer.size()
     for field in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):

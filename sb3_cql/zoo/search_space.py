@@ -16,6 +16,9 @@ BC_STEPS = [0, 5000, 10000, 20000]
 #: Weights of the imitation anchor on the actor after the warm start (0: none, CQL as defined; 0.4: TD3+BC's alpha 2.5).
 ACTOR_BC_WEIGHTS = [0.0, 0.4, 1.0, 4.0]
 
+#: SB3's n-step returns (``n_steps``): steps summed before the TD target bootstraps (1: one-step backups).
+N_STEPS = [1, 3, 5, 10]
+
 #: The critics' rewards by name, as ``(reward_scale, reward_bias)``: the data's 0/1, or the thesis code's 4r - 2.
 REWARDS = {"data": (1.0, 0.0), "shifted": (4.0, -2.0)}
 
@@ -23,7 +26,7 @@ REWARDS = {"data": (1.0, 0.0), "shifted": (4.0, -2.0)}
 def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """Sample the conservative weight, both learning rates, batch size, sampled actions, network size, the
     behaviour-cloning warm start (its length, and its starting learning rate when it has one), the actor's imitation
-    anchor after it, the critics' rewards and the calibration (Cal-QL)."""
+    anchor after it, the critics' rewards, the calibration (Cal-QL) and SB3's n-step returns."""
     params = {
         "cql_alpha": trial.suggest_float("cql_alpha", 0.1, 20.0, log=True),
         "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
@@ -35,6 +38,7 @@ def sample_cql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "actor_bc_weight": trial.suggest_categorical("actor_bc_weight", ACTOR_BC_WEIGHTS),
         "reward": trial.suggest_categorical("reward", list(REWARDS)),
         "cql_calibrated": trial.suggest_categorical("cql_calibrated", [False, True]),
+        "n_steps": trial.suggest_categorical("n_steps", N_STEPS),
     }
     if params["bc_steps"] > 0:  # (without a warm start the rate is unused)
         params["bc_learning_rate"] = trial.suggest_float("bc_learning_rate", 1e-4, 3e-3, log=True)
