@@ -278,7 +278,7 @@ def test_tuning_with_sqlite_storage(zoo):
     assert len(trials) == 2
     for trial in trials:
         sampled = {"cql_alpha", "learning_rate", "actor_learning_rate", "batch_size", "cql_n_actions", "net_arch",
-                   "bc_steps", "actor_bc_weight", "reward", "cql_calibrated"}  # fmt: skip
+                   "bc_steps", "actor_bc_weight", "reward", "cql_calibrated", "n_steps"}  # fmt: skip
         sampled |= {"bc_learning_rate"} if trial.params["bc_steps"] > 0 else set()
         assert set(trial.params) == sampled
 
@@ -289,9 +289,10 @@ def test_the_search_space_samples_a_warm_start_learning_rate_only_for_a_warm_sta
 
     raw = {"cql_alpha": 5.0, "learning_rate": 3e-4, "actor_learning_rate": 3e-5, "batch_size": 352,
            "cql_n_actions": 10, "net_arch": "large", "bc_steps": bc_steps, "bc_learning_rate": 1e-3,
-           "actor_bc_weight": 0.4, "reward": "shifted", "cql_calibrated": True}  # fmt: skip
+           "actor_bc_weight": 0.4, "reward": "shifted", "cql_calibrated": True, "n_steps": 5}  # fmt: skip
     params = sample_cql_params(optuna.trial.FixedTrial(raw), n_actions=9, n_envs=1, additional_args={})
     assert params["bc_steps"] == bc_steps and params["actor_bc_weight"] == 0.4 and params["cql_calibrated"] is True
+    assert params["n_steps"] == 5
     assert (params["reward_scale"], params["reward_bias"]) == (4.0, -2.0) and "reward" not in params
     assert params["policy_kwargs"] == {"net_arch": [256, 256, 256]}
     assert ("bc_learning_rate" in params) == (bc_steps > 0)
