@@ -1,6 +1,7 @@
 """Returns-to-go and the replay buffer that holds them (calibrated CQL's bound), and the buffer of online fine-tuning
 that keeps the offline data beside the online transitions, on hand-made episodes."""
 
+import copy
 import pickle
 
 import numpy as np
@@ -116,3 +117,24 @@ def test_a_pickled_mixed_buffer_keeps_the_online_transitions_up_to_its_size():
     np.testing.assert_allclose(copy.online.returns_to_go[:3, 0], [-np.inf, -np.inf, 1.0])
     with pytest.raises(ValueError, match="one class"):
         copy.set_offline(ReplayBuffer(10, OBSERVATIONS, ACTIONS))
+
+
+def test_a_mixed_buffer_is_a_replay_buffer_of_its_online_part():
+    buffer = mixed_buffer(online_fraction=0.5, capacity=4)
+    for step in range(6):  # wraps around the online capacity
+        add(buffer, 0.0, value=float(step))
+    assert isinstance(buffer, ReplayBuffer)
+    assert (buffer.pos, buffer.full, buffer.buffer_size) == (2, True, 4)
+    assert buffer.observations is buffer.online.observations and buffer.actions.shape == (4, 1, 1)
+    np.testing.assert_array_equal(buffer.observations[:, 0, 0], [4.0, 5.0, 2.0, 3.0])
+    assert buffer.size() == 4 + 10 and buffer.obs_shape == (2,) and buffer.action_dim == 1
+
+
+def test_a_deep_copy_of_a_mixed_buffer_keeps_both_parts():
+    buffer = mixed_buffer(online_fraction=0.5)
+    add(buffer, 0.0, value=1.0)
+    duplicate = copy.deepcopy(buffer)
+    assert duplicate.size() == buffer.size() == 11 and duplicate.offline is not buffer.offline
+    np.testing.assert_array_equal(duplicate.offline.observations, buffer.offline.observations)
+    add(duplicate, 0.0, value=2.0)
+    assert (duplicate.online.size(), buffer.online.size()) == (2, 1)

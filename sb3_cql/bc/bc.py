@@ -33,7 +33,9 @@ class BC(OfflineSAC):
     :param learning_rate: learning rate of the actor.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
     :param batch_size: minibatch size of each gradient step.
-    :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
+        ``None`` (the default) does for an ``MlpPolicy`` on Box observations (see
+        :class:`~sb3_cql.common.OfflineSAC`), ``True`` with another policy is refused.
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
     :param optimize_memory_usage: SAC's; only ``False`` (the offline data keep each transition's next observation).
@@ -58,7 +60,7 @@ class BC(OfflineSAC):
         learning_rate: float | Schedule = 1e-3,
         buffer_size: int = 2_000_000,
         batch_size: int = 256,
-        normalize_observations: bool = True,
+        normalize_observations: bool | None = None,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,

@@ -10,6 +10,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
@@ -27,6 +28,30 @@ def with_n_step_returns(buffer: ReplayBuffer, n_steps: int, gamma: float) -> Rep
     n_step.__dict__.update(buffer.__dict__)
     n_step.n_steps, n_step.gamma = n_steps, gamma
     return n_step
+
+
+def transposed_images(buffer: ReplayBuffer, observation_space: spaces.Space) -> ReplayBuffer:
+    """A copy of ``buffer`` (channel-last images) in ``observation_space``, its images channel-first as SB3's
+    ``VecTransposeImage`` gives them to a policy (``VecTransposeImage.transpose_image``)."""
+    from stable_baselines3.common.vec_env import VecTransposeImage
+
+    kwargs: dict[str, Any] = {"handle_timeout_termination": buffer.handle_timeout_termination}
+    if isinstance(buffer, NStepReplayBuffer):
+        kwargs.update(n_steps=buffer.n_steps, gamma=buffer.gamma)
+    copied = type(buffer)(buffer.buffer_size, observation_space, buffer.action_space, device=buffer.device,
+                          n_envs=buffer.n_envs, **kwargs)  # fmt: skip
+    for field in ("observations", "next_observations"):
+        old, new = getattr(buffer, field), getattr(copied, field)
+        for key in old if isinstance(old, dict) else [None]:
+            source, target = (old, new) if key is None else (old[key], new[key])
+            if source.shape == target.shape:
+                target[:] = source
+            else:  # (buffer_size, n_envs, H, W, C) -> (buffer_size, n_envs, C, H, W)
+                target[:] = VecTransposeImage.transpose_image(source.reshape(-1, *source.shape[2:])).reshape(target.shape)
+    for field in ("actions", "rewards", "dones", "timeouts"):
+        getattr(copied, field)[:] = getattr(buffer, field)
+    copied.pos, copied.full = buffer.pos, buffer.full
+    return copied
 
 
 class ReturnToGoSamples(NamedTuple):
@@ -262,7 +287,7 @@ class MixedReplayBuffer(ReplayBuffer):
         parts = [part.sample(n, env) for part, n in ((self.offline, batch_size - n_online), (self.online, n_online)) if n]
         if len(parts) == 1:
             return parts[0]
-        return type(parts[0])(*(None if fields[0] is None else th.cat(fields) for fields in zip(*parts, strict=True)))
+        return type(parts[0])(*(_concatenated(fields) for fields in zip(*parts, strict=True)))
 
     def start_new_episodes(self) -> None:
         """See :meth:`ReturnToGoReplayBuffer.start_new_episodes` (nothing for a plain online part)."""
@@ -279,10 +304,12 @@ class MixedReplayBuffer(ReplayBuffer):
         state = self.__dict__.copy()
         state["offline"] = None
         online = self.online.__dict__.copy()  # the filled rows only: a checkpoint of 10,000 steps is not 1,000,000's
-        size, trimmed = self.online.size(), []
+        size, capacity, trimmed = self.online.size(), self.online.buffer_size, []
         for key, value in online.items():
-            if isinstance(value, np.ndarray) and value.ndim >= 2 and len(value) == self.online.buffer_size:
-                online[key], trimmed = value[:size].copy(), [*trimmed, key]
+            arrays = value if isinstance(value, dict) else {None: value}  # Dict observations: one array a key
+            if all(isinstance(array, np.ndarray) and array.ndim >= 2 and len(array) == capacity for array in arrays.values()):
+                rows = {name: array[:size].copy() for name, array in arrays.items()}
+                online[key], trimmed = (rows if isinstance(value, dict) else rows[None]), [*trimmed, key]
         state["online"] = (type(self.online), online, trimmed)
         return state
 
@@ -290,13 +317,26 @@ class MixedReplayBuffer(ReplayBuffer):
         online_class, online, trimmed = state["online"]
         for key in trimmed:  # back to the capacity, the rows past the filled ones as a new buffer's
             value = online[key]
-            full = np.full((online["buffer_size"], *value.shape[1:]), -np.inf if key == "returns_to_go" else 0,
-                           dtype=value.dtype)  # fmt: skip
-            full[: len(value)] = value
-            online[key] = full
+            arrays = value if isinstance(value, dict) else {None: value}
+            for name, array in arrays.items():
+                shape = (online["buffer_size"], *array.shape[1:])
+                # np.zeros leaves the untouched capacity unallocated (a million image rows would be gigabytes).
+                full = np.full(shape, -np.inf, array.dtype) if key == "returns_to_go" else np.zeros(shape, array.dtype)
+                full[: len(array)] = array
+                arrays[name] = full
+            online[key] = arrays if isinstance(value, dict) else arrays[None]
         state["online"] = online_class.__new__(online_class)
         state["online"].__dict__.update(online)
         self.__dict__.update(state)
+
+
+def _concatenated(fields: tuple[Any, ...]) -> Any:
+    """One field of several batches in one: tensors, Dict observations key by key, or ``None``."""
+    if fields[0] is None:
+        return None
+    if isinstance(fields[0], dict):
+        return {key: th.cat([field[key] for field in fields]) for key in fields[0]}
+    return th.cat(fields)
 
 
 def _online_attribute(name: str) -> property:

@@ -11,16 +11,19 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.preprocessing import get_obs_shape
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import FloatSchedule
+from stable_baselines3.common.vec_env import VecTransposeImage, unwrap_vec_wrapper
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
-from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer, with_n_step_returns
+from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer, transposed_images, with_n_step_returns
 from sb3_cql.common.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
 
 if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard dataset's collection: neither on import.
@@ -60,7 +63,10 @@ class OfflineSAC(SAC):
     :param learning_rate: learning rate of the critics and the entropy coefficient.
     :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
-    :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy
+        (:class:`~sb3_cql.common.policies.NormalizedFlatten` as its features extractor). ``None`` (the default): for an
+        ``MlpPolicy`` on Box observations, without a ``features_extractor_class`` of the user's; ``True`` for any other
+        policy is refused (a ``CnnPolicy`` scales its images by 255 itself, as SB3's).
     :param online_fraction: ``None`` to train offline; else fine-tune online, drawing this fraction of every batch
         from the online transitions (RLPD's symmetric sampling: 0.5).
     :param online_buffer_size: capacity of the online transitions when fine-tuning.
@@ -86,7 +92,7 @@ class OfflineSAC(SAC):
         learning_rate: float | Schedule = 3e-4,
         actor_learning_rate: float | Schedule | None = None,
         buffer_size: int = 2_000_000,
-        normalize_observations: bool = True,
+        normalize_observations: bool | None = None,
         online_fraction: float | None = None,
         online_buffer_size: int = 1_000_000,
         learning_starts: int = 0,
@@ -102,11 +108,19 @@ class OfflineSAC(SAC):
         self.online_buffer_size = online_buffer_size
         self.deterministic_rollouts = deterministic_rollouts
         self.actor_learning_rate = actor_learning_rate
-        self.normalize_observations = normalize_observations
         self._fill_on_setup = True  # load() turns it off: a loaded model does not reload its data
         policy_kwargs = dict(policy_kwargs or {})
-        if normalize_observations and policy in ("MlpPolicy", self.policy_aliases["MlpPolicy"]):
-            policy_kwargs.setdefault("features_extractor_class", NormalizedFlatten)
+        mlp = policy in ("MlpPolicy", self.policy_aliases["MlpPolicy"]) and "features_extractor_class" not in policy_kwargs
+        if normalize_observations and not mlp:
+            raise ValueError(
+                "normalize_observations=True z-scores flat Box observations of an MlpPolicy with SB3's own features "
+                f"(not {policy if isinstance(policy, str) else policy.__name__} or a features_extractor_class): leave it None"
+            )
+        if normalize_observations is None:
+            normalize_observations = mlp
+        self.normalize_observations = normalize_observations
+        if normalize_observations:
+            policy_kwargs["features_extractor_class"] = NormalizedFlatten
         super().__init__(
             policy,
             env,
@@ -119,6 +133,8 @@ class OfflineSAC(SAC):
         )
 
     def _setup_model(self) -> None:
+        if isinstance(self.observation_space, spaces.Dict) and self.n_steps > 1:
+            raise ValueError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
         super()._setup_model()
         rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
         self.actor_lr_schedule = FloatSchedule(rate)
@@ -131,12 +147,16 @@ class OfflineSAC(SAC):
         ``n_steps`` > 1), a Minari dataset (or id, collected first if it is a missing standard one) loaded into a buffer
         of ``replay_buffer_class`` (SB3's choice: ``NStepReplayBuffer`` for ``n_steps`` > 1); then the observation
         statistics of ``normalize_observations``."""
+        data_space = self._data_observation_space()
         if isinstance(dataset, ReplayBuffer):
-            if dataset.obs_shape != self.observation_space.shape or dataset.action_dim != self.action_space.shape[0]:
+            fits = dataset.obs_shape in (get_obs_shape(self.observation_space), get_obs_shape(data_space))
+            if not fits or dataset.action_dim != self.action_space.shape[0]:
                 raise ValueError(
                     f"the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) do not "
-                    f"match the env's {self.observation_space.shape} and {self.action_space.shape}"
+                    f"match the env's {get_obs_shape(data_space)} and {self.action_space.shape}"
                 )
+            if dataset.obs_shape != get_obs_shape(self.observation_space):
+                dataset = transposed_images(dataset, self.observation_space)
             self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma)
         else:
             from sb3_cql.data.replay import fill_replay_buffer
@@ -147,11 +167,12 @@ class OfflineSAC(SAC):
                 dataset = ensure_dataset(dataset)
             self.replay_buffer = fill_replay_buffer(
                 dataset,
-                self.observation_space,
+                data_space,
                 self.action_space,
                 device=self.device,
                 replay_buffer_class=self.replay_buffer_class,
                 replay_buffer_kwargs=self.replay_buffer_kwargs,
+                buffer_observation_space=self.observation_space,
             )
         size = self.replay_buffer.size()
         if size == 0:
@@ -161,6 +182,12 @@ class OfflineSAC(SAC):
             mean, std = observations.mean(axis=0), observations.std(axis=0)
             for module in (self.actor, self.critic, self.critic_target):
                 module.features_extractor.set_statistics(mean, std)
+
+    def _data_observation_space(self) -> spaces.Space:
+        """The env's observation space as the data hold it: before SB3's ``VecTransposeImage``, which makes
+        channel-last images channel-first for the policy (``self.observation_space``)."""
+        transpose = None if self.env is None else unwrap_vec_wrapper(self.env, VecTransposeImage)
+        return self.observation_space if transpose is None else transpose.venv.observation_space
 
     def learn(
         self: SelfOfflineSAC,

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
@@ -100,7 +101,9 @@ class CQL(OfflineSAC):
         rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
     :param reward_bias: see ``reward_scale``.
-    :param normalize_observations: z-score Box observations with the dataset's mean and std.
+    :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
+        ``None`` (the default) does for an ``MlpPolicy`` on Box observations (see
+        :class:`~sb3_cql.common.OfflineSAC`), ``True`` with another policy is refused.
     :param online_fraction: ``None`` (the default) trains offline. A fraction fine-tunes online: :meth:`learn` steps
         the env as SAC's does, timesteps are env steps, the offline data stay in the replay buffer (a
         :class:`~sb3_cql.common.MixedReplayBuffer`) and every batch draws this fraction of its samples from the online
@@ -164,7 +167,7 @@ class CQL(OfflineSAC):
         actor_bc_weight: float = 0.0,
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
-        normalize_observations: bool = True,
+        normalize_observations: bool | None = None,
         online_fraction: float | None = None,
         online_buffer_size: int = 1_000_000,
         learning_starts: int = 0,
@@ -245,6 +248,8 @@ class CQL(OfflineSAC):
     def _setup_model(self) -> None:
         # A model saved with SAC's policy classes loads into CQL's (the same parameters).
         self.policy_class = FROM_SAC.get(self.policy_class, self.policy_class)  # type: ignore[arg-type]
+        if self.cql_calibrated and isinstance(self.observation_space, spaces.Dict):
+            raise ValueError("cql_calibrated is not supported with Dict observations (returns-to-go need a Box buffer)")
         super()._setup_model()
         if self.cql_calibrated and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
             self._calibrate_buffer()
@@ -376,7 +381,7 @@ class CQL(OfflineSAC):
         n_samples = self.cql_n_actions if self.cql_max_backup else 1
         next_actions, next_log_prob = self.sample_policy_actions(*next_policy, n_samples)
         if n_samples > 1:
-            next_observations = next_observations.repeat_interleave(n_samples, dim=0)
+            next_observations = _map(lambda tensor: tensor.repeat_interleave(n_samples, dim=0), next_observations)
         next_q_values = th.cat(self.critic_target(next_observations, next_actions), dim=1)
         next_q_values, _ = th.min(next_q_values, dim=1, keepdim=True)
         if not self.cql_deterministic_backup:
@@ -400,14 +405,17 @@ class CQL(OfflineSAC):
         from the (mean actions, log-std) ``policy`` and ``next_policy``), importance-weighted by their densities;
         the policy groups go through :meth:`calibrate_policy_values`. Logs ``train/cql_q_*`` and ``train/cql_gap``."""
         observations = replay_data.observations
-        batch_size, n = observations.shape[0], self.cql_n_actions
+        batch_size, n = replay_data.actions.shape[0], self.cql_n_actions
         action_dim = self.action_space.shape[0]
         with th.no_grad():
             random_actions = th.empty(batch_size * n, action_dim, device=self.device).uniform_(-1.0, 1.0)
             policy_actions, policy_log_prob = self.sample_policy_actions(*policy, n)
             next_policy_actions, next_policy_log_prob = self.sample_policy_actions(*next_policy, n)
-        repeated = observations.repeat_interleave(n, dim=0)
-        all_observations = th.cat([observations, repeated.repeat(3, *[1] * (repeated.dim() - 1))])
+        # The data's states, then each state n times for each of the three groups (observations of any shape).
+        all_observations = _map(
+            lambda tensor: th.cat([tensor, tensor.repeat_interleave(n, dim=0).repeat(3, *[1] * (tensor.dim() - 1))]),
+            observations,
+        )
         actions = th.cat([replay_data.actions, random_actions, policy_actions, next_policy_actions])
         # Importance weights: uniform density (1/2)^|A| on [-1, 1]^|A|, the policy's own density otherwise.
         log_densities = th.cat(
@@ -564,6 +572,13 @@ class CQL(OfflineSAC):
             state_dicts.append("alpha_prime_optimizer")
             variables.append("log_alpha_prime")
         return state_dicts, variables
+
+
+def _map(function: Any, observations: th.Tensor | dict[str, th.Tensor]) -> th.Tensor | dict[str, th.Tensor]:
+    """``function`` applied to a batch of observations, or to each of Dict observations."""
+    if isinstance(observations, dict):
+        return {key: function(tensor) for key, tensor in observations.items()}
+    return function(observations)
 
 
 def _append(logs: dict[str, list[float]], key: str, value: float) -> None:

@@ -66,14 +66,24 @@ def _name(dataset: MinariDataset) -> str:
 
 
 def check_spaces(dataset: MinariDataset, observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    """Raise :class:`DatasetError` unless the dataset's spaces have the env's shapes and bounds."""
+    """Raise :class:`DatasetError` unless the dataset's spaces have the env's shapes and bounds: Box spaces, or for
+    observations a Dict of Box spaces with the env's keys."""
     name = _name(dataset)
-    for what, data_space, env_space in (
-        ("observation", dataset.observation_space, observation_space),
-        ("action", dataset.action_space, action_space),
-    ):
+    pairs = [("observation", dataset.observation_space, observation_space), ("action", dataset.action_space, action_space)]
+    if isinstance(dataset.observation_space, spaces.Dict) and isinstance(observation_space, spaces.Dict):
+        if set(dataset.observation_space.spaces) != set(observation_space.spaces):
+            raise DatasetError(
+                f"dataset {name}: observation keys {sorted(dataset.observation_space.spaces)} do not match the env's "
+                f"{sorted(observation_space.spaces)}"
+            )
+        pairs[:1] = [(f"observation {key!r}", dataset.observation_space[key], observation_space[key])
+                     for key in observation_space.spaces]  # fmt: skip
+    for what, data_space, env_space in pairs:
         if not isinstance(data_space, spaces.Box) or not isinstance(env_space, spaces.Box):
-            raise DatasetError(f"dataset {name}: only Box spaces are supported, got {data_space} and {env_space}")
+            raise DatasetError(
+                f"dataset {name}: only Box spaces (and Dict observations of them) are supported, got {data_space} and "
+                f"{env_space}"
+            )
         if data_space.shape != env_space.shape:
             raise DatasetError(f"dataset {name}: {what} shape {data_space.shape} does not match the env's {env_space.shape}")
         if not (np.allclose(data_space.low, env_space.low) and np.allclose(data_space.high, env_space.high)):
@@ -91,6 +101,7 @@ def fill_replay_buffer(
     device: str = "auto",
     replay_buffer_class: type[ReplayBuffer] | None = None,
     replay_buffer_kwargs: dict[str, Any] | None = None,
+    buffer_observation_space: spaces.Space | None = None,
 ) -> ReplayBuffer:
     """Append every transition of ``dataset`` to a ``ReplayBuffer`` and return the buffer.
 
@@ -110,8 +121,12 @@ def fill_replay_buffer(
         ``NStepReplayBuffer`` samples n-step returns within each episode).
     :param replay_buffer_kwargs: keywords of a buffer made here (``n_steps`` and ``gamma`` of an
         ``NStepReplayBuffer``).
+    :param buffer_observation_space: the observation space of a buffer made here where it is not the env's: SB3's
+        ``VecTransposeImage`` makes channel-last images channel-first for the policy, and the data's images are
+        transposed as it transposes them. Dict observations load into a ``DictReplayBuffer``.
     """
-    from stable_baselines3.common.buffers import ReplayBuffer
+    from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
+    from stable_baselines3.common.vec_env import VecTransposeImage
 
     if isinstance(dataset, str):
         dataset = load_dataset(dataset)
@@ -121,12 +136,11 @@ def fill_replay_buffer(
     n_transitions = dataset.storage.total_steps if len(dataset) == dataset.storage.total_episodes else dataset.total_steps
     if n_transitions == 0:
         raise DatasetError(f"dataset {name} holds no transitions")
+    buffer_space = observation_space if buffer_observation_space is None else buffer_observation_space
     if replay_buffer is None:
-        buffer_class = replay_buffer_class or ReplayBuffer
-        replay_buffer = buffer_class(
-            n_transitions, observation_space, action_space, device=device, **(replay_buffer_kwargs or {})
-        )
-    if replay_buffer.n_envs != 1 or replay_buffer.optimize_memory_usage:
+        buffer_class = replay_buffer_class or (DictReplayBuffer if isinstance(buffer_space, spaces.Dict) else ReplayBuffer)
+        replay_buffer = buffer_class(n_transitions, buffer_space, action_space, device=device, **(replay_buffer_kwargs or {}))
+    if replay_buffer.n_envs != 1 or replay_buffer.optimize_memory_usage:  # (a DictReplayBuffer has the same arrays)
         raise ValueError("fill_replay_buffer needs a ReplayBuffer with n_envs=1 and optimize_memory_usage=False")
     if replay_buffer.full:
         raise ValueError("fill_replay_buffer cannot append to a full buffer")
@@ -134,22 +148,26 @@ def fill_replay_buffer(
     if start + n_transitions > replay_buffer.buffer_size:
         replay_buffer = _grown(replay_buffer, start + n_transitions)
 
-    observations, next_observations = replay_buffer.observations[:, 0], replay_buffer.next_observations[:, 0]
+    transposed = _transposed_keys(observation_space, replay_buffer.observation_space)
     actions = replay_buffer.actions[:, 0]
     scale = 2.0 / (action_space.high - action_space.low)
     position = start
     for episode_id, episode_observations, episode_actions, rewards, terminations, truncations in _episode_arrays(dataset):
         length = len(rewards)
         rows = slice(position, position + length)
-        observations[rows] = episode_observations[:-1]
-        next_observations[rows] = episode_observations[1:]
+        for key, array in _items(episode_observations):
+            if key in transposed:  # channel-last images as SB3's VecTransposeImage gives them to the policy
+                array = VecTransposeImage.transpose_image(array)
+            _column(replay_buffer.observations, key)[rows] = array[:-1]
+            _column(replay_buffer.next_observations, key)[rows] = array[1:]
         # 2 (a - low) / (high - low) - 1, in place: SB3's BasePolicy.scale_action.
         np.multiply(episode_actions - action_space.low, scale, out=actions[rows])
         actions[rows] -= 1.0
         replay_buffer.rewards[rows, 0] = rewards
         replay_buffer.dones[rows, 0] = terminations
         replay_buffer.timeouts[rows, 0] = truncations
-        if not (np.isfinite(episode_observations).all() and np.isfinite(actions[rows]).all() and np.isfinite(rewards).all()):
+        finite_observations = all(np.isfinite(array).all() for _, array in _items(episode_observations))
+        if not (finite_observations and np.isfinite(actions[rows]).all() and np.isfinite(rewards).all()):
             raise DatasetError(f"dataset {name}: episode {episode_id} holds NaN or infinite values")
         position += length
     replay_buffer.pos = position % replay_buffer.buffer_size
@@ -167,7 +185,7 @@ def _episode_arrays(
     calls ~290,000. Other formats go through Minari, ``LOAD_BATCH_EPISODES`` episodes at a time.
     """
     storage, indices = dataset.storage, dataset.episode_indices
-    if storage.FORMAT != "hdf5":
+    if storage.FORMAT != "hdf5" or isinstance(dataset.observation_space, spaces.Dict):  # Dicts are HDF5 groups
         for first in range(0, len(indices), LOAD_BATCH_EPISODES):
             for episode in dataset.iterate_episodes(indices[first : first + LOAD_BATCH_EPISODES]):
                 yield episode.id, *(getattr(episode, field) for field in _FIELDS)
@@ -189,6 +207,36 @@ def _episode_arrays(
 _FIELDS = ("observations", "actions", "rewards", "terminations", "truncations")
 
 
+def _items(observations: np.ndarray | dict[str, np.ndarray]) -> list[tuple[str | None, np.ndarray]]:
+    """``(key, array)`` of Dict observations, ``(None, array)`` of Box ones."""
+    return list(observations.items()) if isinstance(observations, dict) else [(None, observations)]
+
+
+def _column(arrays: np.ndarray | dict[str, np.ndarray], key: str | None) -> np.ndarray:
+    """A buffer's ``(buffer_size, 1, ...)`` array (of ``key`` for Dict observations) as ``(buffer_size, ...)``."""
+    return (arrays if key is None else arrays[key])[:, 0]
+
+
+def _transposed_keys(data_space: spaces.Space, buffer_space: spaces.Space) -> set[str | None]:
+    """The observations (keys of Dict ones, ``None`` for a Box) that SB3's ``VecTransposeImage`` transposed: channel-last
+    in the data's space, channel-first in the buffer's."""
+    data, buffer = dict(_space_items(data_space)), dict(_space_items(buffer_space))
+    if set(data) != set(buffer):
+        raise DatasetError(f"the buffer's observation space {buffer_space} does not hold the data's {data_space}")
+    transposed = set()
+    for key, space in data.items():
+        shape, buffer_shape = space.shape, buffer[key].shape
+        if shape != buffer_shape:
+            if len(shape) != 3 or buffer_shape != (shape[2], shape[0], shape[1]):
+                raise DatasetError(f"the buffer's observation shape {buffer_shape} does not hold the data's {shape}")
+            transposed.add(key)
+    return transposed
+
+
+def _space_items(space: spaces.Space) -> list[tuple[str | None, spaces.Space]]:
+    return list(space.spaces.items()) if isinstance(space, spaces.Dict) else [(None, space)]
+
+
 def _grown(replay_buffer: ReplayBuffer, buffer_size: int) -> ReplayBuffer:
     """A copy of ``replay_buffer`` with room for ``buffer_size`` transitions."""
     from stable_baselines3.common.buffers import NStepReplayBuffer
@@ -201,6 +249,8 @@ def _grown(replay_buffer: ReplayBuffer, buffer_size: int) -> ReplayBuffer:
     )
     size = replay_buffer.size()
     for field in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
-        getattr(grown, field)[:size] = getattr(replay_buffer, field)[:size]
+        old, new = getattr(replay_buffer, field), getattr(grown, field)
+        for key, array in _items(old):
+            (new if key is None else new[key])[:size] = array[:size]
     grown.pos = size
     return grown

@@ -3,19 +3,23 @@
 
 :func:`extend` is called by :mod:`sb3_cql.zoo.hook` right after each zoo module in ``hook.TRIGGERS`` is imported;
 ``import sb3_cql.zoo.plugin`` extends whichever of them are already loaded and installs the hook for the others.
+It wraps public ``ExperimentManager`` methods only; :data:`ZOO_INTERNALS` names every part of the zoo (and of SB3)
+it relies on beyond their documented use.
 """
 
 from __future__ import annotations
 
+import argparse
 import functools
 import inspect
 import shutil
 import signal
 import sys
 import threading
+import warnings
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, NamedTuple
 
 #: The algorithm the package adds to the zoo, with its search space.
 ALGO = "cql"
@@ -26,6 +30,99 @@ ALGOS = (ALGO, "bc")
 ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
 #: ``train.py``'s default of ``--save-freq`` (no checkpoints): a config's ``save_freq`` replaces it.
 ZOO_DEFAULT_SAVE_FREQ = -1
+
+
+class ZooInternal(NamedTuple):
+    """A part of RL-Zoo3 (or SB3) the plugin relies on that a new version could change without notice.
+
+    :param kind: ``"method"``: an ``ExperimentManager`` method the plugin wraps, ``uses`` the parameters it binds by
+        name; ``"attribute"``: an attribute the plugin reads or sets, ``uses`` what of it; ``"option"``: an option
+        of ``rl_zoo3.train``, ``uses`` its default and the ``ExperimentManager`` attribute it sets (for ours also the
+        config key that replaces it); ``"behaviour"``: something the zoo's or SB3's code does that the plugin builds on.
+    :param name: where it is.
+    :param uses: what of it the plugin uses.
+    :param reason: why the plugin needs it.
+    """
+
+    kind: str
+    name: str
+    uses: tuple[Any, ...]
+    reason: str
+
+
+#: Everything of RL-Zoo3 and SB3 the plugin relies on beyond their documented use, each checked against the installed
+#: versions by ``tests/test_zoo_internals.py``. The plugin wraps public methods only and matches no error text.
+ZOO_INTERNALS: tuple[ZooInternal, ...] = (
+    ZooInternal("method", "ExperimentManager.__init__", ("config", "eval_env_kwargs"),
+                "our hyperparams/ file unless --conf-file is given; whether --eval-env-kwargs was given"),
+    ZooInternal("method", "ExperimentManager.read_hyperparameters", (),
+                "returns (hyperparams, saved copy): our config keys out of the first; its env_kwargs for evaluation too"),
+    ZooInternal("method", "ExperimentManager.setup_experiment", (),
+                "a run stopped before its first model (e.g. while its dataset is collected) leaves no folder"),
+    ZooInternal("method", "ExperimentManager.create_envs", ("eval_env",),
+                "an -i model whose spaces do not fit the training env ends the run on one line, before SB3 loads it"),
+    ZooInternal("method", "ExperimentManager.learn", ("model",),
+                "Ctrl-C noted (the zoo swallows it); fine-tuning checkpoints keep, and -i CHECKPOINT loads, transitions"),
+    ZooInternal("method", "ExperimentManager.save_trained_model", ("model",),
+                "where the models are and how to use them, or what an interrupted run kept"),
+    ZooInternal("attribute", "rl_zoo3.utils.ALGOS", ALGOS, "--algo's choices and the classes the zoo builds"),
+    ZooInternal("attribute", "rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER", (ALGO,), "CQL's search space for -optimize"),
+    ZooInternal("attribute", "rl_zoo3.hyperparams_opt.HYPERPARAMS_CONVERTER", (ALGO,), "a study's trial as CQL keywords"),
+    ZooInternal("attribute", "ExperimentManager.algo", ("read",), "our config and messages for our algorithms only"),
+    ZooInternal("attribute", "ExperimentManager.env_name", ("gym_id",), "the env id of our config, commands and messages"),
+    ZooInternal("attribute", "ExperimentManager.config", ("read", "set"), "the config file read_hyperparameters loads"),
+    ZooInternal("attribute", "ExperimentManager.env_kwargs", ("read",), "the training env's kwargs, named when -i misfits"),
+    ZooInternal("attribute", "ExperimentManager.eval_env_kwargs", ("set",), "the kwargs create_envs gives the evaluation env"),
+    ZooInternal("attribute", "ExperimentManager.args", ("env_kwargs",), "the train.py Namespace the zoo saves as args.yml"),
+    ZooInternal("attribute", "ExperimentManager.callbacks", ("read",), "the CheckpointCallback the zoo made for --save-freq"),
+    ZooInternal("attribute", "ExperimentManager.save_path", ("read",), "the run's folder"),
+    ZooInternal("attribute", "ExperimentManager.trained_agent", ("read",), "the -i model"),
+    ZooInternal("attribute", "ExperimentManager.continue_training", ("read",), "whether -i names a model to load"),
+    ZooInternal("attribute", "ExperimentManager.n_timesteps", ("read",), "the step count an interrupted run names"),
+    ZooInternal("option", "--eval-freq", (ZOO_DEFAULT_EVAL_FREQ, "eval_freq"), "a config's eval_freq replaces the default"),
+    ZooInternal("option", "--eval-episodes", (ZOO_DEFAULT_EVAL_EPISODES, "n_eval_episodes"),
+                "a config's n_eval_episodes replaces the default"),
+    ZooInternal("option", "--save-freq", (ZOO_DEFAULT_SAVE_FREQ, "save_freq"), "a config's save_freq replaces the default"),
+    ZooInternal("option", "--env-kwargs", (None, "env_kwargs"), "None when not given: the config's go to args.yml then"),
+    ZooInternal("behaviour", "train.train parses sys.argv[1:]",
+                (), "the only record of which options were given: the Namespace holds values, the parser is local"),
+    ZooInternal("behaviour", "train.train calls learn, then save_trained_model", (),
+                "how a run ended is said after the zoo's save"),
+    ZooInternal("behaviour", "ExperimentManager.learn returns after Ctrl-C", (),
+                "the zoo catches KeyboardInterrupt to save the model: the plugin only notes that it came"),
+    ZooInternal("behaviour", "ExperimentManager.learn trains with self.callbacks", (),
+                "the CheckpointCallback set to keep the replay buffer is the one that runs"),
+    ZooInternal("behaviour", "ExperimentManager.create_callbacks checkpoints as rl_model in save_path", (),
+                "a checkpoint's transitions are found beside it by SB3's names for that prefix"),
+    ZooInternal("behaviour", "CheckpointCallback saves <prefix>_replay_buffer_<N>_steps.pkl", (),
+                "the name -i CHECKPOINT looks for"),
+    ZooInternal("behaviour", "ExperimentManager._load_pretrained_agent loads replay_buffer.pkl beside the model", (),
+                "a checkpoint's own transitions are loaded only where the zoo loads none"),
+    ZooInternal("behaviour", "ExperimentManager.setup_experiment loads -i with the env of create_envs(eval_env=False)", (),
+                "that env is the one whose spaces the plugin checks"),
+    ZooInternal("behaviour", "BaseAlgorithm.load checks spaces with check_for_correct_spaces", (),
+                "the plugin's check of an -i model is SB3's own, made before the load"),
+    ZooInternal("behaviour", "ExperimentManager._preprocess_hyperparams takes env_kwargs from read_hyperparameters", (),
+                "the evaluation env gets the kwargs the training env gets"),
+    ZooInternal("behaviour", "ExperimentManager._save_config writes args as args.yml, where record_video reads env_kwargs",
+                (), "a run's videos are recorded in the action mode it was trained in"),
+    ZooInternal("behaviour", "ExperimentManager.save_path is <log folder>/<algo>/<env id>_<N>", (),
+                "the log folder and --exp-id of the commands printed at the end"),
+    ZooInternal("behaviour", "ExperimentManager.objective calls the sampler with (trial, n_actions, n_envs, additional_args)",
+                (), "sample_cql_params's signature"),
+)  # fmt: skip
+
+#: The ``rl_zoo3.train`` options a config key replaces while the option is at its default: the key is the name of the
+#: ``ExperimentManager`` attribute the option sets (:data:`ZOO_INTERNALS` has the defaults).
+CONFIG_OPTIONS = ("--eval-freq", "--eval-episodes", "--save-freq")
+
+
+def zoo_internal(name: str) -> ZooInternal:
+    """The entry of :data:`ZOO_INTERNALS` named ``name``."""
+    for internal in ZOO_INTERNALS:
+        if internal.name == name:
+            return internal
+    raise KeyError(f"{name!r} is not in ZOO_INTERNALS")
 
 
 def hyperparams_dir() -> Path:
@@ -74,10 +171,28 @@ def _extend_hyperparams_opt(hyperparams_opt: ModuleType) -> None:
     hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(ALGO, convert_cql_params)
 
 
-def _left_at_default(option: str, value: Any, default: Any) -> bool:
-    """Whether the zoo's ``option`` has its default ``value`` and was not written on the command line (where a value
-    equal to the default is still the user's choice)."""
-    return value == default and not any(arg == option or arg.startswith(f"{option}=") for arg in sys.argv[1:])
+def _given_on_command_line(option: str, argv: list[str] | None = None) -> bool:
+    """Whether ``rl_zoo3.train``'s ``option`` is in ``argv`` (default ``sys.argv[1:]``, what train.py parses), spelt
+    any way argparse takes it: ``--eval-freq 5``, ``--eval-freq=5`` or an abbreviation (``--eval-fr 5``).
+
+    The command line is the only record: the zoo's Namespace holds values (``--eval-episodes 5`` is the default's
+    value, yet the user's choice) and its parser is local to ``train()``. A parser of this one option, with argparse's
+    own rules, reads it as the zoo's did: an abbreviation the zoo took is one of this option's prefixes.
+    """
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    parser.add_argument(option, dest="given", nargs="?", default=argparse.SUPPRESS)
+    try:
+        known, _ = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    except argparse.ArgumentError:  # the option is there, in a form a parser of it alone rejects
+        return True
+    return hasattr(known, "given")
+
+
+def _left_at_default(option: str, value: Any) -> bool:
+    """Whether the zoo's ``option`` has train.py's default ``value`` and was not given on the command line (where a
+    value equal to the default is still the user's choice)."""
+    default, _ = zoo_internal(option).uses
+    return value == default and not _given_on_command_line(option)
 
 
 def _our_config(config: str) -> str:
@@ -112,54 +227,107 @@ def _run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
     ]
 
 
+def _saved_spaces(model_path: str) -> tuple[Any, Any] | None:
+    """The observation and action spaces saved in the SB3 model ``model_path``, if they are gymnasium spaces (SB3
+    converts older ones itself when it loads the model)."""
+    from gymnasium import spaces
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(model_path, device="cpu")
+    saved = ((data or {}).get("observation_space"), (data or {}).get("action_space"))
+    return saved if all(isinstance(space, spaces.Space) for space in saved) else None
+
+
+def _misfit(saved_spaces: tuple[Any, Any] | None, env: Any) -> str | None:
+    """How a model with ``saved_spaces`` does not fit ``env``, by SB3's own check when it loads a model with an env
+    (``check_for_correct_spaces``), or None where it fits."""
+    from stable_baselines3.common.utils import check_for_correct_spaces
+
+    if saved_spaces is None:
+        return None
+    try:
+        check_for_correct_spaces(env, *saved_spaces)
+    except ValueError as error:
+        return " ".join(str(error).split())
+    return None
+
+
+def _load_checkpoint_buffer(model: Any, model_path: Path) -> None:
+    """Continue an online fine-tuning from a checkpoint with the transitions saved beside it, unless the zoo loaded a
+    ``replay_buffer.pkl`` there itself."""
+    buffer = _checkpoint_buffer(model_path)
+    if buffer is not None and not model_path.with_name("replay_buffer.pkl").is_file():
+        print(f"Loading the replay buffer of the checkpoint: {buffer}")
+        model.load_replay_buffer(buffer)
+
+
+def _wrap_problems(manager: type) -> list[str]:
+    """What of the :data:`ZOO_INTERNALS` methods ``manager`` lacks: a method, or a parameter the plugin binds."""
+    problems = []
+    for internal in ZOO_INTERNALS:
+        if internal.kind != "method":
+            continue
+        method = getattr(manager, internal.name.rsplit(".", 1)[-1], None)
+        if not callable(method):
+            problems.append(f"no {internal.name}")
+            continue
+        missing = [name for name in internal.uses if name not in inspect.signature(method).parameters]
+        problems += [f"{internal.name} has no parameter {name!r}" for name in missing]
+    return problems
+
+
 def _extend_exp_manager(exp_manager: ModuleType) -> None:
+    """Wrap the :data:`ZOO_INTERNALS` methods of ``ExperimentManager``: each calls the zoo's own and adds ours."""
     from stable_baselines3.common.callbacks import CheckpointCallback
 
     manager = exp_manager.ExperimentManager
-    init, preprocess = manager.__init__, manager._preprocess_hyperparams
-    setup, learn, save = manager.setup_experiment, manager.learn, manager.save_trained_model
-    load_pretrained = manager._load_pretrained_agent
-    init_signature = inspect.signature(init)
+    problems = _wrap_problems(manager)
+    if problems:
+        # The zoo's classes stay as they are: half of the extension would be worse than none.
+        warnings.warn(f"sb3-cql's zoo plugin does not fit this rl_zoo3 ({'; '.join(problems)}): its configs, evaluation "
+                      "settings and messages are off", RuntimeWarning, stacklevel=2)  # fmt: skip
+        return
+    zoo = {internal.name.rsplit(".", 1)[-1]: getattr(manager, internal.name.rsplit(".", 1)[-1])
+           for internal in ZOO_INTERNALS if internal.kind == "method"}  # fmt: skip
+    config_parameter, eval_env_kwargs_parameter = zoo_internal("ExperimentManager.__init__").uses
+    (eval_env_parameter,) = zoo_internal("ExperimentManager.create_envs").uses
+    init_signature, create_envs_signature = inspect.signature(zoo["__init__"]), inspect.signature(zoo["create_envs"])
 
-    @functools.wraps(init)
     def __init__(self, *args: Any, **kwargs: Any) -> None:
-        init(self, *args, **kwargs)
-        if init_signature.bind(self, *args, **kwargs).arguments.get("config") is None:  # no --conf-file
+        zoo["__init__"](self, *args, **kwargs)
+        given = init_signature.bind(self, *args, **kwargs).arguments
+        self._sb3_cql_eval_env_kwargs_given = given.get(eval_env_kwargs_parameter) is not None
+        if given.get(config_parameter) is None:  # no --conf-file
             ours = config_file(self.algo, self.env_name.gym_id)
             if ours is not None:
                 self.config = str(ours)
         else:
             self.config = _our_config(self.config)
 
-    @functools.wraps(preprocess)
-    def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
-        # Evaluation settings in a config: the zoo has command-line flags for them only.
-        eval_freq, n_eval_episodes = hyperparams.pop("eval_freq", None), hyperparams.pop("n_eval_episodes", None)
-        if eval_freq is not None and _left_at_default("--eval-freq", self.eval_freq, ZOO_DEFAULT_EVAL_FREQ):
-            self.eval_freq = int(eval_freq)
-        if n_eval_episodes is not None and _left_at_default(
-            "--eval-episodes", self.n_eval_episodes, ZOO_DEFAULT_EVAL_EPISODES
-        ):
-            self.n_eval_episodes = int(n_eval_episodes)
-        save_freq = hyperparams.pop("save_freq", None)
-        if save_freq is not None and _left_at_default("--save-freq", self.save_freq, ZOO_DEFAULT_SAVE_FREQ):
-            self.save_freq = int(save_freq)
-        result = preprocess(self, hyperparams)
-        if self._eval_env_kwargs_args is None:
-            # The zoo gives a config's env_kwargs to the training env only (it copied the empty command-line value
-            # to the evaluation env before reading the config): evaluate in the env trained in (e.g. its action mode).
-            self.eval_env_kwargs = self.env_kwargs
-        if self.env_kwargs and getattr(self.args, "env_kwargs", None) is None:
-            # Recorded in the run's args.yml too: record_video reads env_kwargs from there only, not from config.yml.
-            self.args.env_kwargs = self.env_kwargs
-        return result
+    def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        hyperparams, saved_hyperparams = zoo["read_hyperparameters"](self)
+        # Evaluation and checkpoint settings in a config: the zoo has command-line options for them only. They leave
+        # the hyperparameters the model gets, not the saved ones (config.yml records them).
+        for option in CONFIG_OPTIONS:
+            _, attribute = zoo_internal(option).uses
+            value = hyperparams.pop(attribute, None)
+            if value is not None and _left_at_default(option, getattr(self, attribute)):
+                setattr(self, attribute, int(value))
+        if "env_kwargs" in hyperparams:
+            if not getattr(self, "_sb3_cql_eval_env_kwargs_given", False):
+                # The zoo gives a config's env_kwargs to the training env only (it copied the empty command-line value
+                # to the evaluation env before reading the config): evaluate in the env trained in (its action mode).
+                self.eval_env_kwargs = hyperparams["env_kwargs"]
+            if hyperparams["env_kwargs"] and getattr(self.args, "env_kwargs", None) is None:
+                # Recorded in the run's args.yml too: record_video reads env_kwargs from there only, not from config.yml.
+                self.args.env_kwargs = hyperparams["env_kwargs"]
+        return hyperparams, saved_hyperparams
 
-    @functools.wraps(setup)
     def setup_experiment(self) -> Any:
         # The zoo makes the run's folder before the model, whose dataset may first be collected: a run stopped there
         # (Ctrl-C, an error) would leave a folder without a model, and shift the next run's number.
         try:
-            return setup(self)
+            return zoo["setup_experiment"](self)
         except BaseException as error:
             folder = Path(self.save_path)
             if folder.is_dir() and not _holds_a_model(folder):
@@ -170,37 +338,36 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 raise SystemExit(130) from None
             raise
 
-    @functools.wraps(load_pretrained)
-    def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: Any) -> Any:
-        # -i MODEL: a model that does not fit the env gets one line (SB3 raises on its spaces); a checkpoint of an
-        # online fine-tuning continues with the online transitions saved beside it.
-        try:
-            model = load_pretrained(self, hyperparams, env)
-        except ValueError as error:
-            if "spaces do not match" not in str(error):
-                raise
-            print(f"python -m rl_zoo3.train: error: {self.trained_agent} does not fit {self.env_name.gym_id} "
-                  f"{self.env_kwargs or ''}: {' '.join(str(error).split())}", file=sys.stderr)  # fmt: skip
-            raise SystemExit(2) from None
-        buffer = _checkpoint_buffer(Path(self.trained_agent))
-        beside = Path(self.trained_agent).with_name("replay_buffer.pkl")
-        if getattr(model, "online_fraction", None) is not None and buffer is not None and not beside.is_file():
-            print(f"Loading the replay buffer of the checkpoint: {buffer}")
-            model.load_replay_buffer(buffer)
-        return model
+    def create_envs(self, *args: Any, **kwargs: Any) -> Any:
+        env = zoo["create_envs"](self, *args, **kwargs)
+        call = create_envs_signature.bind(self, *args, **kwargs)
+        call.apply_defaults()
+        if self.continue_training and not call.arguments[eval_env_parameter]:
+            # -i MODEL: SB3's load would raise on spaces that do not fit (another action mode) with a traceback.
+            if not hasattr(self, "_sb3_cql_saved_spaces"):
+                self._sb3_cql_saved_spaces = _saved_spaces(self.trained_agent)
+            misfit = _misfit(self._sb3_cql_saved_spaces, env)
+            if misfit is not None:
+                env.close()
+                env_kwargs = f" {self.env_kwargs}" if self.env_kwargs else ""
+                print(f"python -m rl_zoo3.train: error: {self.trained_agent} does not fit {self.env_name.gym_id}"
+                      f"{env_kwargs}: {misfit}", file=sys.stderr)  # fmt: skip
+                raise SystemExit(2)
+        return env
 
-    @functools.wraps(learn)
-    def learn_(self, model: Any) -> None:
+    def learn(self, model: Any) -> None:
         if getattr(model, "online_fraction", None) is not None:
             # Online fine-tuning: a checkpoint keeps the online transitions too, to continue from (-i CHECKPOINT).
             for callback in self.callbacks:
                 if isinstance(callback, CheckpointCallback):
                     callback.save_replay_buffer = True
+            if self.continue_training:
+                _load_checkpoint_buffer(model, Path(self.trained_agent))
         # The zoo ends training quietly on Ctrl-C (it catches KeyboardInterrupt) and saves the model: note that it
         # was cut short, to say so after the save.
         self._sb3_cql_interrupted = False
         if threading.current_thread() is not threading.main_thread():
-            learn(self, model)
+            zoo["learn"](self, model)
             return
 
         def note_and_interrupt(signum: int, frame: Any) -> None:
@@ -209,13 +376,12 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
 
         previous = signal.signal(signal.SIGINT, note_and_interrupt)
         try:
-            learn(self, model)
+            zoo["learn"](self, model)
         finally:
             signal.signal(signal.SIGINT, previous)
 
-    @functools.wraps(save)
     def save_trained_model(self, model: Any) -> None:
-        save(self, model)
+        zoo["save_trained_model"](self, model)
         if self.algo not in ALGOS:
             return
         folder, env_id = Path(self.save_path), self.env_name.gym_id
@@ -230,12 +396,11 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
         for line in _run_commands(self.algo, env_id, folder):
             print(line)
 
-    manager.__init__ = __init__
-    manager._preprocess_hyperparams = _preprocess_hyperparams
-    manager.setup_experiment = setup_experiment
-    manager.learn = learn_
-    manager._load_pretrained_agent = _load_pretrained_agent
-    manager.save_trained_model = save_trained_model
+    ours = {wrapper.__name__: wrapper for wrapper in (__init__, read_hyperparameters, setup_experiment, create_envs,
+                                                      learn, save_trained_model)}  # fmt: skip
+    assert set(ours) == set(zoo), "every wrapped method is named in ZOO_INTERNALS"
+    for name, wrapper in ours.items():
+        setattr(manager, name, functools.wraps(zoo[name])(wrapper))
 
 
 _EXTENSIONS = {
