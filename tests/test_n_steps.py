@@ -189,3 +189,15 @@ def test_bc_takes_n_steps_and_a_reward_bias_with_n_steps_needs_a_discount():
     model.learn(3)
     with pytest.raises(ValueError, match="needs gamma < 1"):
         CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), n_steps=3, gamma=1.0, reward_bias=-1.0)
+
+
+def test_a_saved_n_step_model_loads_without_sb3s_custom_buffer_warning(tmp_path, recwarn):
+    model = CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), n_steps=3, gamma=GAMMA, batch_size=2,
+                policy_kwargs=TINY)  # fmt: skip
+    model.save(tmp_path / "model.zip")
+    loaded = CQL.load(tmp_path / "model.zip", env=spaces_env())
+    assert not [warning for warning in recwarn if "n_steps" in str(warning.message)]
+    loaded.replay_buffer = None
+    loaded.dataset = None
+    loaded._fill_from_dataset(hand_made_buffer())
+    assert isinstance(loaded.replay_buffer, NStepReplayBuffer) and loaded.replay_buffer.n_steps == 3

@@ -135,6 +135,10 @@ class OfflineSAC(SAC):
     def _setup_model(self) -> None:
         if isinstance(self.observation_space, spaces.Dict) and self.n_steps > 1:
             raise ValueError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
+        if self.replay_buffer_class is NStepReplayBuffer and self.replay_buffer_kwargs.get("n_steps") == self.n_steps:
+            # SB3's own choice for n_steps, saved with the model: made again on load, where SB3 would warn that a
+            # custom replay_buffer_class leaves n_steps unused (SAC's load of an n-step model does).
+            self.replay_buffer_class = None
         super()._setup_model()
         rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
         self.actor_lr_schedule = FloatSchedule(rate)
