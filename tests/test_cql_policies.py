@@ -5,6 +5,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from rollouts import random_rollouts
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.sac.policies import SACPolicy
 
@@ -16,17 +17,7 @@ TINY = {"net_arch": [32, 32]}
 
 
 def pendulum_buffer(n_transitions: int = 300) -> ReplayBuffer:
-    env = gym.make("Pendulum-v1")
-    env.action_space.seed(0)
-    buffer = ReplayBuffer(n_transitions, env.observation_space, env.action_space)
-    observation, _ = env.reset(seed=0)
-    for _ in range(n_transitions):
-        action = env.action_space.sample()
-        next_observation, reward, terminated, truncated, _ = env.step(action)
-        buffer.add(observation, next_observation, action / 2.0, np.array([reward]), np.array([terminated or truncated]),
-                   [{"TimeLimit.truncated": truncated}])  # fmt: skip
-        observation = next_observation if not (terminated or truncated) else env.reset()[0]
-    return buffer
+    return random_rollouts(gym.make("Pendulum-v1"), n_transitions)
 
 
 def policy(share_features_extractor: bool) -> CQLPolicy:

@@ -8,6 +8,7 @@ import pandas as pd
 import pytest
 import torch as th
 from gymnasium import spaces
+from rollouts import random_rollouts
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.logger import configure
 
@@ -170,17 +171,7 @@ def test_fine_tuning_with_n_steps_samples_n_step_returns_online_and_offline():
 
 
 def pendulum_buffer(n_transitions: int) -> ReplayBuffer:
-    env = gym.make("Pendulum-v1")
-    env.action_space.seed(0)
-    buffer = ReplayBuffer(n_transitions, env.observation_space, env.action_space)
-    observation, _ = env.reset(seed=0)
-    for _ in range(n_transitions):
-        action = env.action_space.sample()
-        next_observation, reward, terminated, truncated, _ = env.step(action)
-        buffer.add(observation, next_observation, action / 2.0, np.array([reward]), np.array([terminated or truncated]),
-                   [{"TimeLimit.truncated": truncated}])  # fmt: skip
-        observation = next_observation if not (terminated or truncated) else env.reset()[0]
-    return buffer
+    return random_rollouts(gym.make("Pendulum-v1"), n_transitions)
 
 
 def test_bc_takes_n_steps_and_a_reward_bias_with_n_steps_needs_a_discount():

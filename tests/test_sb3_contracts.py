@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from rollouts import random_rollouts
 from stable_baselines3 import SAC
-from stable_baselines3.common.buffers import DictReplayBuffer, NStepReplayBuffer, ReplayBuffer
+from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.envs import FakeImageEnv, SimpleMultiObsEnv
 
@@ -53,23 +54,6 @@ ENVS = {
 POLICIES = {"pendulum": "MlpPolicy", "matrix": "MlpPolicy", "dict": "MultiInputPolicy"}
 
 
-def rollouts(env: gym.Env, n_transitions: int, seed: int = 0) -> ReplayBuffer:
-    """Random transitions of ``env`` in a buffer of its own spaces (as a user collects them: channel-last images as
-    the env gives them), actions scaled to [-1, 1] as SB3 stores them."""
-    buffer_class = DictReplayBuffer if isinstance(env.observation_space, spaces.Dict) else ReplayBuffer
-    buffer = buffer_class(n_transitions, env.observation_space, env.action_space)
-    env.action_space.seed(seed)
-    observation, _ = env.reset(seed=seed)
-    low, high = env.action_space.low, env.action_space.high
-    for _ in range(n_transitions):
-        action = env.action_space.sample()
-        next_observation, reward, terminated, truncated, _ = env.step(action)
-        buffer.add(observation, next_observation, 2 * (action - low) / (high - low) - 1, np.array([reward]),
-                   np.array([terminated or truncated]), [{"TimeLimit.truncated": truncated}])  # fmt: skip
-        observation = next_observation if not (terminated or truncated) else env.reset()[0]
-    return buffer
-
-
 def policy_of(env_name: str) -> tuple[str, dict]:
     """The policy for the env, with small networks (and small image features)."""
     policy = POLICIES.get(env_name, "CnnPolicy")
@@ -80,7 +64,7 @@ def policy_of(env_name: str) -> tuple[str, dict]:
 def make(algorithm: str, env_name: str, seed: int = 0, **kwargs):
     algorithm_class, keywords = ALGORITHMS[algorithm]
     policy, policy_kwargs = policy_of(env_name)
-    return algorithm_class(policy, ENVS[env_name](), dataset=rollouts(ENVS[env_name](), 120), batch_size=8,
+    return algorithm_class(policy, ENVS[env_name](), dataset=random_rollouts(ENVS[env_name](), 120), batch_size=8,
                            policy_kwargs=policy_kwargs, seed=seed, **{**keywords, **kwargs})  # fmt: skip
 
 
@@ -172,7 +156,7 @@ def test_n_step_returns_train_save_and_load(algorithm, tmp_path):
      MixedReplayBuffer)],
 )  # fmt: skip
 def test_every_replay_buffer_we_make_saves_loads_and_copies_whole(options, buffer_class, tmp_path):
-    model = CQL("MlpPolicy", "Pendulum-v1", dataset=rollouts(gym.make("Pendulum-v1"), 300), batch_size=16,
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_rollouts(gym.make("Pendulum-v1"), 300), batch_size=16,
                 policy_kwargs=TINY, seed=0, **options)  # fmt: skip
     model.learn(20)
     assert type(model.replay_buffer) is buffer_class
@@ -235,7 +219,7 @@ def test_every_sac_keyword_is_cqls_with_sacs_default_or_refused_in_one_line():
     for name, parameter in sac.items():
         if name not in {"self", "policy", "env"} | kept_other_defaults:
             assert cql[name].default == parameter.default, name
-    buffer = rollouts(gym.make("Pendulum-v1"), 50)
+    buffer = random_rollouts(gym.make("Pendulum-v1"), 50)
     for keyword, value in (("use_sde", True), ("use_sde_at_warmup", True), ("optimize_memory_usage", True)):
         with pytest.raises(ValueError, match=f"^{keyword}=True is not supported: "):
             CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, **{keyword: value})
@@ -246,10 +230,12 @@ def test_every_sac_keyword_is_cqls_with_sacs_default_or_refused_in_one_line():
 
 
 def test_normalize_observations_applies_to_an_mlp_policy_or_is_refused():
-    buffer = rollouts(gym.make("Pendulum-v1"), 50)
+    buffer = random_rollouts(gym.make("Pendulum-v1"), 50)
     assert CQL("MlpPolicy", "Pendulum-v1", dataset=buffer).normalize_observations is True
     images = FakeImageEnv(40, 40, n_channels=2, discrete=False)
-    model = CQL("CnnPolicy", images, dataset=rollouts(FakeImageEnv(40, 40, n_channels=2, discrete=False), 20), batch_size=4)
+    model = CQL(
+        "CnnPolicy", images, dataset=random_rollouts(FakeImageEnv(40, 40, n_channels=2, discrete=False), 20), batch_size=4
+    )
     assert model.normalize_observations is False
     with pytest.raises(ValueError, match="normalize_observations=True z-scores flat Box observations of an MlpPolicy"):
         CQL("CnnPolicy", images, dataset=buffer, normalize_observations=True)

@@ -1,0 +1,24 @@
+"""Random rollouts of an env in a replay buffer of its own spaces: the datasets of the algorithms' unit tests."""
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
+
+
+def random_rollouts(env: gym.Env, n_transitions: int, seed: int = 0) -> ReplayBuffer:
+    """``n_transitions`` random transitions of ``env`` in a buffer of its own spaces (as a user collects them:
+    channel-last images as the env gives them, Dict observations in a ``DictReplayBuffer``), actions scaled to
+    [-1, 1] as SB3 stores them, ``TimeLimit.truncated`` kept."""
+    buffer_class = DictReplayBuffer if isinstance(env.observation_space, spaces.Dict) else ReplayBuffer
+    buffer = buffer_class(n_transitions, env.observation_space, env.action_space)
+    env.action_space.seed(seed)
+    observation, _ = env.reset(seed=seed)
+    low, high = env.action_space.low, env.action_space.high
+    for _ in range(n_transitions):
+        action = env.action_space.sample()
+        next_observation, reward, terminated, truncated, _ = env.step(action)
+        buffer.add(observation, next_observation, 2 * (action - low) / (high - low) - 1, np.array([reward]),
+                   np.array([terminated or truncated]), [{"TimeLimit.truncated": truncated}])  # fmt: skip
+        observation = next_observation if not (terminated or truncated) else env.reset()[0]
+    return buffer
