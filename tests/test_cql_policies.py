@@ -82,3 +82,31 @@ def test_a_model_saved_with_sacs_policy_class_loads_into_cqls(tmp_path):
     loaded.replay_buffer = pendulum_buffer()
     loaded.learn(3)
     assert loaded._n_updates == 3
+
+
+def test_a_policy_of_sacs_own_classes_trains_with_cqls_passes():
+    """A policy class of the user's built on SAC's (its actor and critic SAC's own) gets the same warm start and
+    conservative term."""
+
+    class UsersPolicy(SACPolicy):
+        pass
+
+    model = CQL(UsersPolicy, "Pendulum-v1", dataset=pendulum_buffer(), batch_size=32, bc_steps=3, seed=0,
+                normalize_observations=False, policy_kwargs=TINY)  # fmt: skip
+    assert type(model.critic).__name__ == "ContinuousCritic"
+    model.learn(6)  # 3 warm-start steps, 3 steps following Q
+    assert model._n_updates == 6
+
+
+def test_a_critic_with_a_forward_of_its_own_keeps_it_in_the_conservative_term():
+    critic = policy(False).critic
+    calls = []
+
+    class OwnForward(CQLCritic):
+        def forward(self, obs, actions):
+            calls.append(len(obs))
+            return super().forward(obs, actions)
+
+    critic.__class__ = OwnForward
+    critic.forward_fused(th.randn(5, 3), th.randn(5, 1))
+    assert calls == [5]

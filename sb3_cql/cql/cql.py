@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -16,7 +17,7 @@ from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
 from sb3_cql.common import OfflineSAC, ReturnToGoReplayBuffer, behaviour_cloning_loss
-from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLCritic, MlpPolicy, MultiInputPolicy
+from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLActor, CQLCritic, MlpPolicy, MultiInputPolicy
 
 if TYPE_CHECKING:
     from minari import MinariDataset
@@ -427,7 +428,10 @@ class CQL(OfflineSAC):
             dim=1,
         )
         current_q_values, gaps = [], []
-        for index, q_values in enumerate(self._critic_pass(all_observations, actions), start=1):
+        # CQLCritic's fused pass, also on SAC's own critic (a policy class of the user's may build it).
+        forward_fused = getattr(self.critic, "forward_fused", None)
+        forward_fused = forward_fused or functools.partial(CQLCritic.forward_fused, self.critic)
+        for index, q_values in enumerate(forward_fused(all_observations, actions), start=1):
             q_data = q_values[:batch_size]
             raw_sampled = q_values[batch_size:].reshape(3, batch_size, n)
             sampled = th.cat([raw_sampled[:1], self.calibrate_policy_values(raw_sampled[1:], replay_data)])
@@ -515,7 +519,10 @@ class CQL(OfflineSAC):
         # for the spread made the policy's samples bang-bang on the noisy data, whose clipped actions often sit at
         # +-1; the conservative term then kept Q at the policy's samples tens below Q at the data actions, and the
         # backup carried that gap into every Q-value: docs/findings.md.)
-        mean_actions, log_std = self.actor.imitation_dist_params(replay_data.observations)
+        # CQLActor's pass, also on SAC's own actor (a policy class of the user's may build it).
+        imitation_dist_params = getattr(self.actor, "imitation_dist_params", None)
+        imitation_dist_params = imitation_dist_params or functools.partial(CQLActor.imitation_dist_params, self.actor)
+        mean_actions, log_std = imitation_dist_params(replay_data.observations)
         _, spread_log_prob = self.actor.action_dist.log_prob_from_params(mean_actions.detach(), log_std)
         return (ent_coef * spread_log_prob).mean() + behaviour_cloning_loss(mean_actions, replay_data.actions)
 
@@ -559,12 +566,6 @@ class CQL(OfflineSAC):
         """
         mean_actions, log_std = mean_actions.repeat_interleave(n, dim=0), log_std.repeat_interleave(n, dim=0)
         return self.actor.action_dist.log_prob_from_params(mean_actions, log_std)
-
-    def _critic_pass(self, observations: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
-        """The critics on the conservative term's rows: the fused pass of CQL's critic, SAC's forward for another."""
-        if isinstance(self.critic, CQLCritic):
-            return self.critic.forward_fused(observations, actions)
-        return self.critic(observations, actions)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

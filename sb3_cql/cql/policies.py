@@ -31,9 +31,12 @@ class CQLCritic(ContinuousCritic):
         """What ``forward(obs, actions)`` computes, with the same gradients (the features extractor trains through
         the critic only when it is not shared with the actor, as SB3's), each Q-network's forward and backward as one
         fused ``Linear -> ReLU -> ...`` node when it is a ReLU MLP and the tensors are on the CPU (oneDNN); SB3's own
-        ``forward`` otherwise (other networks, other devices)."""
+        ``forward`` otherwise (other networks, other devices, a subclass's own ``forward``). Also callable on any SB3
+        ``ContinuousCritic`` (``CQLCritic.forward_fused(critic, obs, actions)``), as CQL does for a policy of SAC's
+        classes."""
         networks = [relu_mlp_parameters(q_net) for q_net in self.q_networks]
-        if actions.device.type != "cpu" or any(parameters is None for parameters in networks):
+        sb3_forward = type(self).forward is ContinuousCritic.forward  # a critic with a forward of its own keeps it
+        if not sb3_forward or actions.device.type != "cpu" or any(parameters is None for parameters in networks):
             return self(obs, actions)
         # SB3's rule (ContinuousCritic.forward): the features learn through the actor's loss when shared.
         with th.set_grad_enabled(not self.share_features_extractor):
@@ -47,7 +50,8 @@ class CQLActor(Actor):
 
     def imitation_dist_params(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """``get_action_dist_params(obs)``'s mean actions and log-std (CQL has no gSDE), with the log-std head fed
-        the shared layers' output detached: gradients of the log-std reach that head only."""
+        the shared layers' output detached: gradients of the log-std reach that head only. Also callable on any SAC
+        ``Actor`` (``CQLActor.imitation_dist_params(actor, obs)``)."""
         features = self.extract_features(obs, self.features_extractor)
         latent_pi = self.latent_pi(features)
         log_std = th.clamp(self.log_std(latent_pi.detach()), LOG_STD_MIN, LOG_STD_MAX)
