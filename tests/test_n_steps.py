@@ -188,7 +188,19 @@ def test_a_saved_n_step_model_loads_without_sb3s_custom_buffer_warning(tmp_path,
     model.save(tmp_path / "model.zip")
     loaded = CQL.load(tmp_path / "model.zip", env=spaces_env())
     assert not [warning for warning in recwarn if "n_steps" in str(warning.message)]
-    loaded.replay_buffer = None
-    loaded.dataset = None
-    loaded._fill_from_dataset(hand_made_buffer())
-    assert isinstance(loaded.replay_buffer, NStepReplayBuffer) and loaded.replay_buffer.n_steps == 3
+    assert loaded.n_steps == 3 and loaded.replay_buffer_class is NStepReplayBuffer
+
+
+@pytest.mark.parametrize("saved, given", [(1, 4), (3, 1)])
+def test_n_steps_given_to_load_sets_the_loaded_models_returns(saved, given, tmp_path, monkeypatch):
+    """As the zoo's fine-tuning config passes its hyperparameters to load: the data reload into the buffer SB3 chooses
+    for the new n_steps, and the online transitions go to one of the same."""
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    hand_made_minari_dataset(tmp_path)
+    model = CQL("MlpPolicy", spaces_env(), dataset="test/hand-made-v0", n_steps=saved, gamma=GAMMA, batch_size=2,
+                policy_kwargs=TINY)  # fmt: skip
+    model.save(tmp_path / "model.zip")
+    loaded = CQL.load(tmp_path / "model.zip", env=spaces_env(), n_steps=given, online_fraction=0.5)
+    loaded.learn(3)
+    assert getattr(loaded.replay_buffer.offline, "n_steps", 1) == getattr(loaded.replay_buffer.online, "n_steps", 1) == given
+    assert all_samples(loaded.replay_buffer.offline) == pytest.approx(expected_samples(given))

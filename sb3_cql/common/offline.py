@@ -103,6 +103,7 @@ class OfflineSAC(SAC):
         if online_fraction is not None and not 0.0 <= online_fraction <= 1.0:
             raise ValueError(f"online_fraction must be None (offline training) or in [0, 1], got {online_fraction}")
         _refuse_unsupported(kwargs)
+        self._sb3_chooses_buffer_class = kwargs.get("replay_buffer_class") is None
         self.dataset = dataset
         self.online_fraction = online_fraction
         self.online_buffer_size = online_buffer_size
@@ -135,10 +136,12 @@ class OfflineSAC(SAC):
     def _setup_model(self) -> None:
         if isinstance(self.observation_space, spaces.Dict) and self.n_steps > 1:
             raise ValueError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
-        if self.replay_buffer_class is NStepReplayBuffer and self.replay_buffer_kwargs.get("n_steps") == self.n_steps:
-            # SB3's own choice for n_steps, saved with the model: made again on load, where SB3 would warn that a
-            # custom replay_buffer_class leaves n_steps unused (SAC's load of an n-step model does).
+        if getattr(self, "_sb3_chooses_buffer_class", True):
+            # SB3 chose the buffer class (from n_steps and the observation space) and it was saved with the model: a
+            # loaded model chooses again, for the n_steps given to load. Kept, SB3 would take it for a custom class that
+            # leaves n_steps unused (and warn so, as SAC's load of an n-step model does).
             self.replay_buffer_class = None
+            self.replay_buffer_kwargs = {k: v for k, v in self.replay_buffer_kwargs.items() if k not in ("n_steps", "gamma")}
         super()._setup_model()
         rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
         self.actor_lr_schedule = FloatSchedule(rate)
