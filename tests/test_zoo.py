@@ -212,6 +212,20 @@ def test_enjoy_record_video_and_plots_work_on_the_trained_model(zoo, trained):
     assert (zoo.root / "plots.pkl").is_file()
 
 
+def test_a_chunked_model_trains_evaluates_plays_and_records_through_the_zoo(zoo):
+    """Action chunks through every zoo entry point: the chunk length from the command line, then read from the model."""
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "30", "--eval-freq", "15", "--eval-episodes", "1", "-f", "chunked",
+            "--seed", "0", *TINY, "action_chunk:3", "cql_n_actions:2")  # fmt: skip
+    model = zoo.root / "chunked" / "cql" / "Panda-v0_1" / "Panda-v0.zip"
+    assert zoo.python(f"from sb3_cql import CQL; print(CQL.load('{model}').policy.action_chunk)") == "3"
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-f", "chunked", "--exp-id", "1", "-n", "12", "--no-render",
+            module="rl_zoo3.enjoy")  # fmt: skip
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-f", "chunked", "--exp-id", "1", "-n", "10", "-o", "chunked_videos",
+            module="rl_zoo3.record_video")  # fmt: skip
+    assert list((zoo.root / "chunked_videos").glob("*.mp4"))
+    assert "Panda-v0" in zoo.run(str(model), "--algo", "cql", "-n", "1", "--env", "Panda-v0", module="sb3_cql.evaluate")
+
+
 def test_evaluation_settings_come_from_the_config(zoo):
     zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "150", "-f", "config-eval", *TINY,
             "eval_freq:75", "n_eval_episodes:1")  # fmt: skip

@@ -36,6 +36,8 @@ class BC(OfflineSAC):
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
         ``None`` (the default) does for an ``MlpPolicy`` on Box observations (see
         :class:`~sb3_cql.common.OfflineSAC`), ``True`` with another policy is refused.
+    :param action_chunk: actions per decision: the actor imitates the data's chunks of ``action_chunk`` actions (from
+        every step), and each chunk runs open loop when the model acts (:class:`~sb3_cql.common.OfflineSAC`).
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
     :param optimize_memory_usage: SAC's; only ``False`` (the offline data keep each transition's next observation).
@@ -61,6 +63,7 @@ class BC(OfflineSAC):
         buffer_size: int = 2_000_000,
         batch_size: int = 256,
         normalize_observations: bool | None = None,
+        action_chunk: int = 1,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
@@ -83,6 +86,7 @@ class BC(OfflineSAC):
             learning_rate=learning_rate,
             buffer_size=buffer_size,
             normalize_observations=normalize_observations,
+            action_chunk=action_chunk,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,

@@ -1,6 +1,7 @@
 """What the offline algorithms share: SAC's networks trained from a dataset instead of an env, and fine-tuned online."""
 
 from sb3_cql.common.buffers import (
+    ActionChunkReplayBuffer,
     MixedReplayBuffer,
     ReturnToGoReplayBuffer,
     ReturnToGoSamples,
@@ -10,6 +11,7 @@ from sb3_cql.common.buffers import (
 from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
 
 __all__ = [
+    "ActionChunkReplayBuffer",
     "MixedReplayBuffer",
     "OfflineSAC",
     "ReturnToGoReplayBuffer",

@@ -16,18 +16,65 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 
-def with_n_step_returns(buffer: ReplayBuffer, n_steps: int, gamma: float) -> ReplayBuffer:
+def with_n_step_returns(
+    buffer: ReplayBuffer, n_steps: int, gamma: float, buffer_class: type[NStepReplayBuffer] = NStepReplayBuffer
+) -> ReplayBuffer:
     """``buffer`` sampling SB3's ``n_steps``-step returns: for ``n_steps`` > 1, a plain ``ReplayBuffer``'s transitions
-    (its arrays, shared, not copied) in an ``NStepReplayBuffer``; any other buffer (already n-step, or of a class of
-    its own) as it is, as SB3 takes a custom ``replay_buffer_class``."""
+    (its arrays, shared, not copied) in a ``buffer_class`` (SB3's ``NStepReplayBuffer``, or
+    :class:`ActionChunkReplayBuffer`); any other buffer (already n-step, or of a class of its own) as it is, as SB3
+    takes a custom ``replay_buffer_class``."""
     if n_steps <= 1 or type(buffer) is not ReplayBuffer:
         return buffer
     if buffer.optimize_memory_usage:
         raise ValueError("n-step returns do not support a buffer with optimize_memory_usage (SB3's NStepReplayBuffer)")
-    n_step = NStepReplayBuffer.__new__(NStepReplayBuffer)
+    n_step = buffer_class.__new__(buffer_class)
     n_step.__dict__.update(buffer.__dict__)
     n_step.n_steps, n_step.gamma = n_steps, gamma
     return n_step
+
+
+class ActionChunkReplayBuffer(NStepReplayBuffer):
+    """SB3's ``NStepReplayBuffer`` whose samples carry the chunk of ``n_steps`` actions from each sampled step, for a
+    critic of action chunks (Q-chunking): ``actions`` are ``(batch, n_steps * action_dim)``, the stored actions of
+    steps ``t .. t + n_steps - 1`` one after the other; ``rewards``, ``discounts``, ``dones`` and
+    ``next_observations`` are SB3's n-step ones over the same steps. A chunk that reaches its episode's end (a
+    termination, a truncation, or the last transition written of an episode under way) is cut there as SB3 cuts the
+    n-step return, and the rest of it repeats the last action of the episode. Every stored step starts a chunk.
+
+    The buffer stores one transition a step (``add`` as ``ReplayBuffer``'s), so SB3's own sampling of single actions
+    is :meth:`single_step_samples`. It holds the transitions of one env (``n_envs=1``).
+
+    :param args: ``NStepReplayBuffer``'s (``buffer_size``, ``observation_space``, ``action_space``, ...).
+    :param n_steps: actions per chunk, and steps of the n-step return.
+    :param gamma: discount factor.
+    :param kwargs: ``NStepReplayBuffer``'s.
+    """
+
+    def __init__(self, *args: Any, n_steps: int = 5, gamma: float = 0.99, **kwargs: Any) -> None:
+        super().__init__(*args, n_steps=n_steps, gamma=gamma, **kwargs)
+        if self.n_envs != 1:
+            raise ValueError(f"ActionChunkReplayBuffer holds the transitions of one env (n_envs=1), got n_envs={self.n_envs}")
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        samples = super()._get_samples(batch_inds, env)
+        return samples._replace(actions=self.to_torch(self.chunk_actions(batch_inds)))
+
+    def chunk_actions(self, batch_inds: np.ndarray) -> np.ndarray:
+        """The chunks of ``n_steps`` stored actions from rows ``batch_inds``, ``(len(batch_inds), n_steps *
+        action_dim)``, each cut at its episode's end where SB3's ``NStepReplayBuffer`` cuts the return, the last action
+        repeated after it."""
+        steps = np.arange(self.n_steps)
+        rows = (batch_inds[:, None] + steps) % self.buffer_size
+        # SB3's cut: a termination or truncation, or the last row written (an episode under way).
+        ends = np.logical_or(self.dones[rows, 0], self.timeouts[rows, 0]) | (rows == (self.pos - 1) % self.buffer_size)
+        last = np.where(ends.any(axis=1), ends.argmax(axis=1), self.n_steps - 1)
+        rows = np.where(steps <= last[:, None], rows, rows[np.arange(len(rows)), last][:, None])
+        return self.actions[rows, 0].reshape(len(batch_inds), -1)
+
+    def single_step_samples(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        """SB3's ``ReplayBuffer`` sampling of the same transitions: one action each, one-step returns."""
+        batch_inds = np.random.randint(0, self.buffer_size if self.full else self.pos, size=batch_size)
+        return ReplayBuffer._get_samples(self, batch_inds, env)
 
 
 def transposed_images(buffer: ReplayBuffer, observation_space: spaces.Space) -> ReplayBuffer:

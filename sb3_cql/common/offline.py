@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import os
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
@@ -23,8 +24,14 @@ from stable_baselines3.common.vec_env import VecTransposeImage, unwrap_vec_wrapp
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
-from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer, transposed_images, with_n_step_returns
-from sb3_cql.common.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten
+from sb3_cql.common.buffers import (
+    ActionChunkReplayBuffer,
+    MixedReplayBuffer,
+    ReturnToGoReplayBuffer,
+    transposed_images,
+    with_n_step_returns,
+)
+from sb3_cql.common.policies import FROM_SAC, CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten, OfflinePolicy
 
 if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard dataset's collection: neither on import.
     from minari import MinariDataset
@@ -71,6 +78,11 @@ class OfflineSAC(SAC):
         from the online transitions (RLPD's symmetric sampling: 0.5).
     :param online_buffer_size: capacity of the online transitions when fine-tuning.
     :param learning_starts: env steps of random actions before training starts, when fine-tuning (SAC's).
+    :param action_chunk: actions per decision (Q-chunking): the actor emits ``action_chunk`` actions at once, the
+        critics score the state with the whole chunk, the TD target sums the chunk's rewards and bootstraps with
+        ``gamma ** action_chunk`` (SB3's n-step returns over the chunk, ``n_steps = action_chunk``), the data are read
+        as the chunk from every step (:class:`~sb3_cql.common.ActionChunkReplayBuffer`), and the chunk runs open loop
+        when the model acts (:class:`~sb3_cql.common.policies.OfflinePolicy`). ``1`` (the default): one action a state.
     :param deterministic_rollouts: when fine-tuning, act with the policy's deterministic action plus ``action_noise``
         (TD3's exploration; SB3's ``NormalActionNoise``, or the zoo's ``noise_type``/``noise_std``) instead of a sample
         of the policy (SAC's). A clone's samples rarely hold a grasp where its deterministic action does
@@ -83,6 +95,8 @@ class OfflineSAC(SAC):
         "CnnPolicy": CnnPolicy,
         "MultiInputPolicy": MultiInputPolicy,
     }
+    #: SAC's policy classes and ours for each: a model saved with one of SAC's loads into ours.
+    policy_from_sac: ClassVar[dict[type[BasePolicy], type[BasePolicy]]] = FROM_SAC
 
     def __init__(
         self,
@@ -97,12 +111,23 @@ class OfflineSAC(SAC):
         online_buffer_size: int = 1_000_000,
         learning_starts: int = 0,
         deterministic_rollouts: bool = False,
+        action_chunk: int = 1,
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
         if online_fraction is not None and not 0.0 <= online_fraction <= 1.0:
             raise ValueError(f"online_fraction must be None (offline training) or in [0, 1], got {online_fraction}")
         _refuse_unsupported(kwargs)
+        if action_chunk < 1:
+            raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
+        if action_chunk > 1 and kwargs.get("n_steps", 1) not in (1, action_chunk):
+            raise ValueError(f"n_steps={kwargs['n_steps']} with action_chunk={action_chunk}: a chunk's backup spans its "
+                             f"{action_chunk} steps (n_steps is the chunk's length)")  # fmt: skip
+        if action_chunk > 1 and kwargs.get("replay_buffer_class") is not None:
+            raise ValueError("action_chunk > 1 samples from a replay buffer class of its own: leave replay_buffer_class out")
+        self.action_chunk = action_chunk
+        if action_chunk > 1:
+            kwargs["n_steps"] = action_chunk
         self._sb3_chooses_buffer_class = kwargs.get("replay_buffer_class") is None
         self.dataset = dataset
         self.online_fraction = online_fraction
@@ -122,6 +147,8 @@ class OfflineSAC(SAC):
         self.normalize_observations = normalize_observations
         if normalize_observations:
             policy_kwargs["features_extractor_class"] = NormalizedFlatten
+        if action_chunk > 1:
+            policy_kwargs["action_chunk"] = action_chunk
         super().__init__(
             policy,
             env,
@@ -142,7 +169,21 @@ class OfflineSAC(SAC):
             # leaves n_steps unused (and warn so, as SAC's load of an n-step model does).
             self.replay_buffer_class = None
             self.replay_buffer_kwargs = {k: v for k, v in self.replay_buffer_kwargs.items() if k not in ("n_steps", "gamma")}
-        super()._setup_model()
+        # A model saved with SAC's policy classes loads into ours (the same parameters).
+        self.policy_class = self.policy_from_sac.get(self.policy_class, self.policy_class)  # type: ignore[arg-type]
+        chunked, auto_entropy = getattr(self, "action_chunk", 1) > 1, self.target_entropy == "auto"
+        if chunked:
+            if not issubclass(self.policy_class, OfflinePolicy):
+                raise ValueError(f"action_chunk > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
+                                 f"got {self.policy_class.__name__}")  # fmt: skip
+            self.replay_buffer_class = ActionChunkReplayBuffer
+            self.replay_buffer_kwargs.update(n_steps=self.action_chunk, gamma=self.gamma)
+        with warnings.catch_warnings():
+            # SB3 would warn that our chunk buffer, a custom class, leaves n_steps to it: it reads them.
+            warnings.filterwarnings("ignore", message="`n_steps=.*custom `replay_buffer_class`", category=UserWarning)
+            super()._setup_model()
+        if chunked and auto_entropy:  # SAC's -|A| for an action is -|A| * action_chunk for a chunk
+            self.target_entropy *= self.action_chunk
         rate = self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
         self.actor_lr_schedule = FloatSchedule(rate)
         if self.dataset is not None and self._fill_on_setup:
@@ -164,7 +205,8 @@ class OfflineSAC(SAC):
                 )
             if dataset.obs_shape != get_obs_shape(self.observation_space):
                 dataset = transposed_images(dataset, self.observation_space)
-            self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma)
+            chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
+            self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma, chunks)
         else:
             from sb3_cql.data.replay import fill_replay_buffer
 
@@ -223,6 +265,8 @@ class OfflineSAC(SAC):
         tb_log_name = tb_log_name or type(self).__name__
         if self.online_fraction is not None:
             self._prepare_online_buffer(reset_num_timesteps)
+            # Chunks run open loop from the first step: SB3's learn starts (or continues) with a new one.
+            self._rollout_chunks, self._rollout_episode_starts = None, np.ones(self.n_envs, dtype=bool)
             log_interval = 4 if log_interval is None else log_interval
             return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
         log_interval = 1000 if log_interval is None else log_interval
@@ -248,15 +292,29 @@ class OfflineSAC(SAC):
     ) -> tuple[np.ndarray, np.ndarray]:
         """SAC's exploration (a sample of the policy, plus ``action_noise`` if any), or with ``deterministic_rollouts``
         TD3's: the deterministic action plus ``action_noise``, clipped to the action space (after ``learning_starts``;
-        the random warm-up stays SB3's)."""
-        if not self.deterministic_rollouts or self.num_timesteps < learning_starts:
+        the random warm-up stays SB3's). With action chunks, each chunk (a sample, or the deterministic chunk) runs open
+        loop through the policy's ``state``, a new one when it is used up or an episode ends."""
+        chunked = self.action_chunk > 1
+        if (not self.deterministic_rollouts and not chunked) or self.num_timesteps < learning_starts:
             return super()._sample_action(learning_starts, action_noise, n_envs)
         assert self._last_obs is not None
-        action, _ = self.predict(self._last_obs, deterministic=True)
+        if chunked:
+            action, self._rollout_chunks = self.policy.predict(
+                self._last_obs, self._rollout_chunks, self._rollout_episode_starts, deterministic=self.deterministic_rollouts
+            )
+            self._rollout_episode_starts = np.zeros(n_envs, dtype=bool)
+        else:
+            action, _ = self.predict(self._last_obs, deterministic=True)
         scaled_action = self.policy.scale_action(action)
         if action_noise is not None:
             scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
         return self.policy.unscale_action(scaled_action), scaled_action
+
+    def _store_transition(self, replay_buffer: ReplayBuffer, buffer_action: np.ndarray, new_obs: Any,
+                          reward: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> None:  # fmt: skip
+        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+        if self.action_chunk > 1:  # an episode that ended starts the next with a new chunk
+            self._rollout_episode_starts = self._rollout_episode_starts | np.asarray(dones, dtype=bool)
 
     def _ensure_offline_data(self) -> None:
         """Refill a loaded model's buffer from its dataset id; refuse a buffer smaller than one batch."""

@@ -1,14 +1,111 @@
-"""CQL's policies are SAC's (actor, twin critics), with an optional observation normaliser as features extractor."""
+"""The offline algorithms' policies are SAC's (actor, twin critics), with an optional observation normaliser as
+features extractor and optional action chunks (:class:`OfflinePolicy`)."""
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
-from stable_baselines3.sac.policies import CnnPolicy, MlpPolicy, MultiInputPolicy, SACPolicy
+from stable_baselines3.common.type_aliases import Schedule
+from stable_baselines3.sac import policies as sac_policies
+from stable_baselines3.sac.policies import SACPolicy
 
-__all__ = ["CnnPolicy", "MlpPolicy", "MultiInputPolicy", "NormalizedFlatten", "SACPolicy"]
+__all__ = ["CnnPolicy", "MlpPolicy", "MultiInputPolicy", "NormalizedFlatten", "OfflinePolicy", "SACPolicy", "chunk_space"]
+
+
+def chunk_space(action_space: spaces.Box, action_chunk: int) -> spaces.Box:
+    """The space of ``action_chunk`` consecutive actions of ``action_space``, flattened: ``(action_chunk * dim,)``,
+    the bounds tiled."""
+    low, high = np.tile(action_space.low.ravel(), action_chunk), np.tile(action_space.high.ravel(), action_chunk)
+    return spaces.Box(low, high, dtype=action_space.dtype)  # type: ignore[arg-type]
+
+
+class OfflinePolicy(SACPolicy):
+    """SAC's policy (``MlpPolicy``), optionally on chunks of ``action_chunk`` actions (Q-chunking, Li, Zhou and Levine
+    2025, https://arxiv.org/abs/2507.07969): the actor emits the next ``action_chunk`` actions at once and the critics
+    score the state with the whole chunk (both built on :func:`chunk_space`), while the policy's ``action_space``
+    stays the env's.
+
+    :meth:`predict` then runs each chunk open loop, one env step at a time, through SB3's ``state``: pass back the
+    state it returns, as ``evaluate_policy``, ``EvalCallback`` and the zoo's ``enjoy``/``record_video`` do for
+    recurrent policies, and each chunk's actions come one by one (a new chunk when one is used up, or at
+    ``episode_start``). Without a state, each call starts a new chunk and returns its first action.
+
+    :param action_chunk: actions per chunk (1: SAC's policy, one action a state).
+    :param args: SAC's ``SACPolicy`` arguments (``observation_space``, ``action_space``, ``lr_schedule``, ...).
+    :param kwargs: SAC's ``SACPolicy`` keywords (``net_arch``, ...).
+    """
+
+    def __init__(self, *args: Any, action_chunk: int = 1, **kwargs: Any) -> None:
+        if action_chunk < 1:
+            raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
+        self.action_chunk = action_chunk  # read by _build, which SACPolicy's __init__ calls
+        super().__init__(*args, **kwargs)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        if self.action_chunk > 1:
+            chunks = chunk_space(self.action_space, self.action_chunk)  # type: ignore[arg-type]
+            self.actor_kwargs["action_space"] = self.critic_kwargs["action_space"] = chunks
+        super()._build(lr_schedule)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "action_chunk": self.action_chunk}
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict``; with action chunks, the next action of each env's chunk and the state to pass back
+        (the chunks, ``(n_envs, action_chunk, *action_shape)``, and the next action's index in each)."""
+        if self.action_chunk == 1:
+            return super().predict(observation, state, episode_start, deterministic)
+        _, vectorized = self.obs_to_tensor(observation)  # SB3's reading of a batch or one observation
+        if not vectorized:  # one observation: a batch of one, to read SB3's (n * action_chunk, ...) actions as chunks
+            observation = _batch_of_one(observation)
+        n_envs = len(next(iter(observation.values()))) if isinstance(observation, dict) else len(observation)
+        chunk_shape = (self.action_chunk, *self.action_space.shape)  # type: ignore[misc]
+        if state is None:
+            chunks, index = np.zeros((n_envs, *chunk_shape), dtype=np.float32), np.full(n_envs, self.action_chunk)
+        else:
+            chunks, index = state[0].copy(), state[1].copy()
+        if episode_start is not None:
+            index[np.asarray(episode_start, dtype=bool).reshape(n_envs)] = self.action_chunk
+        new = index >= self.action_chunk
+        if new.any():
+            selected = {key: value[new] for key, value in observation.items()} if isinstance(observation, dict) else None
+            actions, _ = super().predict(observation[new] if selected is None else selected, deterministic=deterministic)
+            chunks[new] = actions.reshape(-1, *chunk_shape)
+            index[new] = 0
+        actions = chunks[np.arange(n_envs), index]
+        index = index + 1
+        return (actions if vectorized else actions[0]), (chunks, index)
+
+
+def _batch_of_one(observation: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:
+    if isinstance(observation, dict):
+        return {key: np.asarray(value)[None] for key, value in observation.items()}
+    return np.asarray(observation)[None]
+
+
+MlpPolicy = OfflinePolicy
+
+
+class CnnPolicy(OfflinePolicy, sac_policies.CnnPolicy):
+    """SAC's ``CnnPolicy`` (``NatureCNN`` features), optionally on action chunks."""
+
+
+class MultiInputPolicy(OfflinePolicy, sac_policies.MultiInputPolicy):
+    """SAC's ``MultiInputPolicy`` (``CombinedExtractor`` features, Dict observations), optionally on action chunks."""
+
+
+#: SAC's policy classes and the offline algorithms' for each: a model saved with one of SAC's loads into ours.
+FROM_SAC = {SACPolicy: OfflinePolicy, sac_policies.CnnPolicy: CnnPolicy, sac_policies.MultiInputPolicy: MultiInputPolicy}
 
 
 class NormalizedFlatten(BaseFeaturesExtractor):

@@ -115,6 +115,10 @@ class CQL(OfflineSAC):
     :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
     :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's; ``-1``: as many as env steps).
     :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``, as SAC's and TD3's).
+    :param action_chunk: actions per decision (Q-chunking, :class:`~sb3_cql.common.OfflineSAC`): the actor and the
+        critics work on chunks of ``action_chunk`` actions, the TD target spans the chunk (``n_steps = action_chunk``),
+        and the conservative term samples whole chunks; each chunk runs open loop when the model acts. ``1``: one action
+        a state.
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's; by default SB3's choice,
         ``NStepReplayBuffer`` for ``n_steps`` > 1).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
@@ -141,6 +145,7 @@ class CQL(OfflineSAC):
         "CnnPolicy": CnnPolicy,
         "MultiInputPolicy": MultiInputPolicy,
     }
+    policy_from_sac: ClassVar[dict[type[BasePolicy], type[BasePolicy]]] = FROM_SAC
 
     def __init__(
         self,
@@ -176,6 +181,7 @@ class CQL(OfflineSAC):
         gradient_steps: int = 1,
         action_noise: ActionNoise | None = None,
         deterministic_rollouts: bool = False,
+        action_chunk: int = 1,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
@@ -222,6 +228,7 @@ class CQL(OfflineSAC):
             learning_starts=learning_starts,
             action_noise=action_noise,
             deterministic_rollouts=deterministic_rollouts,
+            action_chunk=action_chunk,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
@@ -247,8 +254,8 @@ class CQL(OfflineSAC):
         )
 
     def _setup_model(self) -> None:
-        # A model saved with SAC's policy classes loads into CQL's (the same parameters).
-        self.policy_class = FROM_SAC.get(self.policy_class, self.policy_class)  # type: ignore[arg-type]
+        if self.cql_calibrated and self.action_chunk > 1:
+            raise ValueError("cql_calibrated is not supported with action_chunk > 1 yet (returns-to-go of chunk samples)")
         if self.cql_calibrated and isinstance(self.observation_space, spaces.Dict):
             raise ValueError("cql_calibrated is not supported with Dict observations (returns-to-go need a Box buffer)")
         super()._setup_model()
@@ -407,7 +414,7 @@ class CQL(OfflineSAC):
         the policy groups go through :meth:`calibrate_policy_values`. Logs ``train/cql_q_*`` and ``train/cql_gap``."""
         observations = replay_data.observations
         batch_size, n = replay_data.actions.shape[0], self.cql_n_actions
-        action_dim = self.action_space.shape[0]
+        action_dim = replay_data.actions.shape[1]  # the action's, or with action_chunk the whole chunk's
         with th.no_grad():
             random_actions = th.empty(batch_size * n, action_dim, device=self.device).uniform_(-1.0, 1.0)
             policy_actions, policy_log_prob = self.sample_policy_actions(*policy, n)

@@ -18,7 +18,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.sac import policies as sac_policies
 from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN, Actor, SACPolicy
 
-from sb3_cql.common.policies import NormalizedFlatten
+from sb3_cql.common.policies import NormalizedFlatten, OfflinePolicy
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 
 __all__ = ["CQLActor", "CQLCritic", "CQLPolicy", "CnnPolicy", "MlpPolicy", "MultiInputPolicy", "NormalizedFlatten"]
@@ -58,9 +58,9 @@ class CQLActor(Actor):
         return self.mu(latent_pi), log_std
 
 
-class CQLPolicy(SACPolicy):
-    """SAC's policy (``MlpPolicy``) with :class:`CQLActor` and :class:`CQLCritic`; the same parameters, so a model
-    saved with SAC's policy loads into it."""
+class CQLPolicy(OfflinePolicy):
+    """SAC's policy (``MlpPolicy``, optionally on action chunks: :class:`~sb3_cql.common.policies.OfflinePolicy`) with
+    :class:`CQLActor` and :class:`CQLCritic`; the same parameters, so a model saved with SAC's policy loads into it."""
 
     def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> CQLActor:
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
