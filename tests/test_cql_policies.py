@@ -110,3 +110,18 @@ def test_a_critic_with_a_forward_of_its_own_keeps_it_in_the_conservative_term():
     critic.__class__ = OwnForward
     critic.forward_fused(th.randn(5, 3), th.randn(5, 1))
     assert calls == [5]
+
+
+def test_critic_layer_norm_normalises_each_hidden_layer_and_saves_with_the_model(tmp_path):
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(), batch_size=32, seed=0,
+                policy_kwargs={**TINY, "critic_layer_norm": True})  # fmt: skip
+    for critic in (model.critic, model.critic_target):
+        layers = [type(layer).__name__ for layer in critic.q_networks[0]]
+        assert layers == ["Linear", "LayerNorm", "ReLU", "Linear", "LayerNorm", "ReLU", "Linear"]
+        assert critic.qf0 is critic.q_networks[0]
+    assert all(type(layer).__name__ != "LayerNorm" for layer in model.actor.latent_pi)
+    model.learn(5)  # the conservative term takes SB3's forward: no fused pass for these networks
+    model.save(tmp_path / "model.zip")
+    loaded = CQL.load(tmp_path / "model.zip")
+    for name, parameter in model.critic.state_dict().items():
+        assert th.equal(parameter, loaded.critic.state_dict()[name]), name

@@ -8,7 +8,9 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.policies import ContinuousCritic
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.sac import policies as sac_policies
 from stable_baselines3.sac.policies import SACPolicy
@@ -34,16 +36,39 @@ class OfflinePolicy(SACPolicy):
     recurrent policies, and each chunk's actions come one by one (a new chunk when one is used up, or at
     ``episode_start``). Without a state, each call starts a new chunk and returns its first action.
 
+    With ``critic_layer_norm``, every hidden layer of the Q-networks is followed by a LayerNorm before its activation,
+    as RLPD's critics (Ball et al. 2023), which keeps the values of states far from the data from diverging.
+
     :param action_chunk: actions per chunk (1: SAC's policy, one action a state).
+    :param critic_layer_norm: LayerNorm after each hidden layer of the Q-networks.
     :param args: SAC's ``SACPolicy`` arguments (``observation_space``, ``action_space``, ``lr_schedule``, ...).
     :param kwargs: SAC's ``SACPolicy`` keywords (``net_arch``, ...).
     """
 
-    def __init__(self, *args: Any, action_chunk: int = 1, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, action_chunk: int = 1, critic_layer_norm: bool = False, **kwargs: Any) -> None:
         if action_chunk < 1:
             raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
-        self.action_chunk = action_chunk  # read by _build, which SACPolicy's __init__ calls
+        # Both read by _build, which SACPolicy's __init__ calls.
+        self.action_chunk, self.critic_layer_norm = action_chunk, critic_layer_norm
         super().__init__(*args, **kwargs)
+
+    def make_critic(self, features_extractor: BaseFeaturesExtractor | None = None) -> ContinuousCritic:
+        return self.with_critic_layer_norm(super().make_critic(features_extractor))
+
+    def with_critic_layer_norm(self, critic: ContinuousCritic) -> ContinuousCritic:
+        """``critic`` with a LayerNorm after each hidden ``Linear`` of its Q-networks (with ``critic_layer_norm``)."""
+        if not self.critic_layer_norm:
+            return critic
+        for index, q_net in enumerate(critic.q_networks):
+            layers: list[nn.Module] = []
+            for layer in q_net:
+                layers.append(layer)
+                if isinstance(layer, nn.Linear) and layer is not q_net[-1]:
+                    layers.append(nn.LayerNorm(layer.out_features))
+            normed = nn.Sequential(*layers).to(self.device)
+            critic.add_module(f"qf{index}", normed)  # SB3's name of the network, so state dicts keep their keys' prefix
+            critic.q_networks[index] = normed
+        return critic
 
     def _build(self, lr_schedule: Schedule) -> None:
         if self.action_chunk > 1:
@@ -52,7 +77,8 @@ class OfflinePolicy(SACPolicy):
         super()._build(lr_schedule)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "action_chunk": self.action_chunk}
+        data = super()._get_constructor_parameters()
+        return {**data, "action_chunk": self.action_chunk, "critic_layer_norm": self.critic_layer_norm}
 
     def predict(
         self,

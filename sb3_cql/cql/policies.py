@@ -68,7 +68,7 @@ class CQLPolicy(OfflinePolicy):
 
     def make_critic(self, features_extractor: BaseFeaturesExtractor | None = None) -> CQLCritic:
         critic_kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)
-        return CQLCritic(**critic_kwargs).to(self.device)
+        return self.with_critic_layer_norm(CQLCritic(**critic_kwargs).to(self.device))
 
 
 MlpPolicy = CQLPolicy
