@@ -10,10 +10,10 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ContinuousCritic
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
-from torch import nn
 from stable_baselines3.common.type_aliases import Schedule
 from stable_baselines3.sac import policies as sac_policies
 from stable_baselines3.sac.policies import SACPolicy
+from torch import nn
 
 __all__ = ["CnnPolicy", "MlpPolicy", "MultiInputPolicy", "NormalizedFlatten", "OfflinePolicy", "SACPolicy", "chunk_space"]
 
