@@ -22,3 +22,19 @@ def random_rollouts(env: gym.Env, n_transitions: int, seed: int = 0) -> ReplayBu
                    np.array([terminated or truncated]), [{"TimeLimit.truncated": truncated}])  # fmt: skip
         observation = next_observation if not (terminated or truncated) else env.reset()[0]
     return buffer
+
+
+def spaces_env(observation_space: spaces.Space, action_space: spaces.Space) -> gym.Env:
+    """An env of these spaces (SB3 needs one; offline training never steps it): random observations, 0 reward."""
+
+    class SpacesEnv(gym.Env):
+        def __init__(self) -> None:
+            self.observation_space, self.action_space = observation_space, action_space
+
+        def reset(self, *, seed=None, options=None):
+            return self.observation_space.sample(), {}
+
+        def step(self, action):
+            return self.observation_space.sample(), 0.0, False, True, {}
+
+    return SpacesEnv()

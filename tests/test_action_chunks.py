@@ -4,6 +4,7 @@ critics on chunks; each chunk run open loop when the model acts, offline evaluat
 import gymnasium as gym
 import numpy as np
 import pytest
+import rollouts
 import torch as th
 from gymnasium import spaces
 from rollouts import random_rollouts
@@ -36,16 +37,7 @@ def hand_made_buffer() -> ReplayBuffer:
 
 
 def spaces_env() -> gym.Env:
-    class SpacesEnv(gym.Env):
-        observation_space, action_space = OBSERVATIONS, ACTIONS
-
-        def reset(self, *, seed=None, options=None):
-            return self.observation_space.sample(), {}
-
-        def step(self, action):
-            return self.observation_space.sample(), 0.0, False, True, {}
-
-    return SpacesEnv()
+    return rollouts.spaces_env(OBSERVATIONS, ACTIONS)
 
 
 def test_every_step_starts_a_chunk_cut_at_its_episodes_end_with_its_n_step_return():

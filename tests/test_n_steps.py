@@ -6,6 +6,7 @@ import minari
 import numpy as np
 import pandas as pd
 import pytest
+import rollouts
 import torch as th
 from gymnasium import spaces
 from rollouts import random_rollouts
@@ -56,16 +57,7 @@ def all_samples(buffer: ReplayBuffer) -> list[tuple[float, ...]]:
 
 
 def spaces_env() -> gym.Env:
-    class SpacesEnv(gym.Env):
-        observation_space, action_space = OBSERVATIONS, ACTIONS
-
-        def reset(self, *, seed=None, options=None):
-            return self.observation_space.sample(), {}
-
-        def step(self, action):
-            return self.observation_space.sample(), 0.0, False, True, {}
-
-    return SpacesEnv()
+    return rollouts.spaces_env(OBSERVATIONS, ACTIONS)
 
 
 @pytest.mark.parametrize("n_steps", [1, 2, 3, 5])
