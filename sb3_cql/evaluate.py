@@ -4,22 +4,32 @@
     python -m sb3_cql.evaluate logs/bc/Panda-v0_1/best_model.zip --algo bc --seeds 50000-50099   # one episode a seed
     python -m sb3_cql.evaluate pid --env Panda-v0 PandaForce-v0 -n 100
     python -m sb3_cql.evaluate pid-regrasp --env PandaForce-v0 -n 100      # the PD controller that regrasps
+    python -m sb3_cql.evaluate pid-regrasp-yaw --env PandaForce-v0 -n 100  # ... with a random yaw at each attempt
     python -m sb3_cql.evaluate pid --env Panda-v0 --env-kwargs action_mode:"'delta'"
+    python -m sb3_cql.evaluate MODEL.zip --algo cql --env PandaForce-v0 --seeds 50000-50099 --alignment --output out.json
 
-``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...), ``pid`` for the PD controller or
-``pid-regrasp`` for the PD controller that reopens and grasps again when it has lost the object.
+``MODEL`` is a saved SB3 model (``--algo`` is its RL-Zoo3 name: cql, sac, ...) or a PD controller of
+``envs.CONTROLLERS``: ``pid``, ``pid-regrasp`` (it reopens and grasps again when it has lost the object),
+``pid-regrasp-yaw`` (the same with the hand's yaw drawn at random at each grasp attempt) or ``pid-regrasp-aligned``
+(the reference: the fingers close across a fallen cylinder's axis).
 A model acts in the action mode it was trained in, the one whose action space is the model's (absolute: the joint
 limits, delta: [-1, 1]^9); an ``action_mode`` in ``--env-kwargs`` must be that one. The PD controllers act in the
 tasks' default (absolute) mode unless ``--env-kwargs`` gives another.
-Episodes are deterministic given ``--seed``: the env is reset with it once, and its own generator seeds the rest.
-With ``--seeds`` (a range FIRST-LAST or a list), episode i is reset with the i-th seed: any tool that resets the
-env with the same seeds replays the same episodes.
+Episodes are deterministic given ``--seed``: the env is reset with it once, and its own generator seeds the rest
+(a PD controller's random yaws are seeded with it too, ``PDController.seed``).
+With ``--seeds`` (a range FIRST-LAST or a list), episode i is reset with the i-th seed, and a PD controller seeded
+with it: any tool that resets the env with the same seeds replays the same episodes.
+With ``--alignment``, each task also gets a histogram of how the fingers closed on a lying cylinder: the angle
+between the hand's closing direction and the cylinder's axis (90: across it, the grasp that holds; 0: along it) at
+each closing, ``envs.pd_controller.closing_angles``. ``--output`` writes every episode's seed, success and closing
+angles to a JSON file, rewritten atomically after each task.
 A model that is missing, unreadable or not made for the tasks is reported in one line, with exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import inspect
 import itertools
 import re
@@ -37,6 +47,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
+from envs.pd_controller import closing_angles
 from envs.robot import ACTION_MODES
 
 #: The action mode of an env made without ``action_mode``.
@@ -116,15 +127,27 @@ def env_kwargs_for(policy: Any, env_id: str, env_kwargs: dict[str, Any] | None =
     return {**env_kwargs, "action_mode": given or matching[0]}
 
 
-def episode_successes(
+@dataclasses.dataclass
+class EpisodeOutcome:
+    """One evaluation episode: its seed, whether it succeeded, and :func:`envs.pd_controller.closing_angles` of its
+    observations (the hand's closing direction against a lying cylinder's axis, in degrees, at each moment the
+    fingers began to close on the object; ``None`` where the cylinder stood)."""
+
+    seed: int
+    success: bool
+    closing_angles: list[float | None]
+
+
+def episode_outcomes(
     policy: Any,
     env_id: str,
     seeds: Sequence[int],
     deterministic: bool = True,
     env_kwargs: dict[str, Any] | None = None,
-) -> list[bool]:
-    """Whether ``policy`` succeeds in each episode of ``env_id``, episode ``i`` reset with ``seeds[i]``: an episode
-    is replayed by resetting the env with its seed (``env.reset(seed=s)``), whatever ran before.
+) -> list[EpisodeOutcome]:
+    """``policy``'s episodes of ``env_id``, episode ``i`` reset with ``seeds[i]`` (and a PD controller seeded with
+    it, for its random yaws): an episode is replayed by resetting the env with its seed (``env.reset(seed=s)``),
+    whatever ran before. The policy's state goes from one step to the next, SB3-style.
 
     :param policy: an SB3 model or :class:`envs.PDController`.
     :param env_id: the task.
@@ -136,17 +159,55 @@ def episode_successes(
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
         check_spaces(policy, env, env_id)
-        successes = []
+        outcomes = []
         for seed in seeds:
             observation, info = env.reset(seed=int(seed))
+            if isinstance(policy, envs.PDController):
+                policy.seed(int(seed))
+            state, episode_start = None, np.ones(1, dtype=bool)
+            observations = [observation]
             terminated = truncated = False
             while not (terminated or truncated):
-                action, _ = policy.predict(observation, deterministic=deterministic)
+                action, state = policy.predict(observation, state, episode_start, deterministic=deterministic)
                 observation, _, terminated, truncated, info = env.step(action)
-            successes.append(bool(info.get("is_success", False)))
-        return successes
+                observations.append(observation)
+                episode_start = np.zeros(1, dtype=bool)
+            success = bool(info.get("is_success", False))
+            outcomes.append(EpisodeOutcome(int(seed), success, closing_angles(np.stack(observations))))
+        return outcomes
     finally:
         env.close()
+
+
+def episode_successes(
+    policy: Any,
+    env_id: str,
+    seeds: Sequence[int],
+    deterministic: bool = True,
+    env_kwargs: dict[str, Any] | None = None,
+) -> list[bool]:
+    """Whether ``policy`` succeeds in each episode of ``env_id``, episode ``i`` reset with ``seeds[i]``
+    (:func:`episode_outcomes`, whose parameters these are)."""
+    return [outcome.success for outcome in episode_outcomes(policy, env_id, seeds, deterministic, env_kwargs)]
+
+
+#: Bins (degrees) of the histogram of closing angles that ``--alignment`` prints.
+ANGLE_BINS = np.arange(0, 91, 10)
+
+
+def alignment_summary(outcomes: Sequence[EpisodeOutcome]) -> str:
+    """One line on how the fingers closed on lying cylinders in ``outcomes``: a histogram of the closing angles in
+    ``ANGLE_BINS``, the episodes that had such a closing, and how many closings were on an upright cylinder."""
+    angles = [angle for outcome in outcomes for angle in outcome.closing_angles if angle is not None]
+    upright = sum(angle is None for outcome in outcomes for angle in outcome.closing_angles)
+    lying = sum(any(angle is not None for angle in outcome.closing_angles) for outcome in outcomes)
+    counts, _ = np.histogram(angles, bins=ANGLE_BINS)
+    edges = zip(ANGLE_BINS[:-1], ANGLE_BINS[1:], counts, strict=True)
+    bins = ", ".join(f"{low}-{high}: {count}" for low, high, count in edges)
+    return (
+        f"closings on a lying cylinder by angle between the closing direction and its axis (deg; 90: across it): "
+        f"{bins} ({len(angles)} in {lying} episodes; {upright} on an upright cylinder)"
+    )
 
 
 def success_rate(
@@ -164,7 +225,7 @@ def success_rate(
     :param env_id: the task.
     :param n_episodes: episodes (without ``seeds``).
     :param seed: seed of the env's first reset (without ``seeds``): SB3's ``evaluate_policy`` on a ``DummyVecEnv``
-        seeded once, whose generator seeds the next episodes.
+        seeded once, whose generator seeds the next episodes; a PD controller is seeded with it too.
     :param deterministic: use the policy's deterministic actions.
     :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
     :param seeds: one episode per seed, each reset with its seed (:func:`episode_successes`); ``n_episodes`` and
@@ -183,6 +244,8 @@ def success_rate(
         raise
     vec_env = DummyVecEnv([lambda: Monitor(env)])
     vec_env.seed(seed)
+    if isinstance(policy, envs.PDController):
+        policy.seed(seed)
     successes: list[bool] = []
 
     def record_success(local_vars: dict[str, Any], _globals: dict[str, Any]) -> None:
@@ -195,7 +258,7 @@ def success_rate(
 
 
 def load_policy(model: str, algo: str | None, env_id: str, env_kwargs: dict[str, Any] | None = None) -> Any:
-    """The PD controller for ``pid`` or ``pid-regrasp`` (for ``env_id`` made with ``env_kwargs``), else the SB3
+    """The PD controller named ``model`` in ``envs.CONTROLLERS`` (for ``env_id`` made with ``env_kwargs``), else the SB3
     model saved at ``model`` (``algo``: a key of RL-Zoo3's ALGOS)."""
     if model in envs.CONTROLLERS:
         env = gym.make(env_id, **(env_kwargs or {}))
@@ -279,7 +342,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m sb3_cql.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("model", help="path of a saved SB3 model, or pid, or pid-regrasp")
+    parser.add_argument("model", help=f"path of a saved SB3 model, or a PD controller: {', '.join(envs.CONTROLLERS)}")
     parser.add_argument("--algo", default=None, help="RL-Zoo3 name of the model's algorithm (cql, sac, ...)")
     parser.add_argument("--env", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
     parser.add_argument("-n", "--n-episodes", type=int, default=None,
@@ -294,8 +357,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--env-kwargs", type=str, nargs="+", action=EnvKwargs, default={},
                         help="env keywords as the zoo's, e.g. action_mode:\"'delta'\" (a model's action mode is read "
                              "from its action space: an action_mode given must be that one)")  # fmt: skip
+    parser.add_argument("--alignment", action="store_true",
+                        help="also print how the fingers closed on lying cylinders: a histogram of the angle between "
+                             "the closing direction and the cylinder's axis (needs --seeds)")  # fmt: skip
+    parser.add_argument("--output", type=Path, default=None,
+                        help="write each episode's seed, success and closing angles to this JSON file "
+                             "(needs --seeds)")  # fmt: skip
     args = parser.parse_args(argv)
     seeds = None if args.seeds is None else list(itertools.chain.from_iterable(args.seeds))
+    if seeds is None and (args.alignment or args.output is not None):
+        parser.error("--alignment and --output need --seeds (one episode per seed)")
     if seeds is not None and args.n_episodes not in (None, len(seeds)):
         parser.error(f"-n {args.n_episodes} conflicts with --seeds, which gives {len(seeds)} episodes (one per seed)")
     n_episodes = len(seeds) if seeds is not None else 100 if args.n_episodes is None else args.n_episodes
@@ -314,15 +385,32 @@ def main(argv: list[str] | None = None) -> None:
                 env_kwargs[env_id] = env_kwargs_for(model, env_id, args.env_kwargs)
             except (ValueError, TypeError) as error:  # TypeError: a keyword the env does not take
                 fail(parser, f"{args.model}: {error}")
+    tasks: dict[str, Any] = {}
     for env_id in args.env:
         # PD: one per task, for its action mode and physics
         try:
             policy = model if model is not None else load_policy(args.model, args.algo, env_id, env_kwargs[env_id])
         except (ValueError, TypeError) as error:  # an action mode or a keyword the env does not take
             fail(parser, f"{args.model} on {env_id}: {error}")
-        rate = success_rate(policy, env_id, n_episodes, args.seed, not args.stochastic, env_kwargs[env_id], seeds)
         action_mode = env_kwargs[env_id].get("action_mode", DEFAULT_ACTION_MODE)
+        if seeds is None:
+            rate = success_rate(policy, env_id, n_episodes, args.seed, not args.stochastic, env_kwargs[env_id])
+        else:
+            outcomes = episode_outcomes(policy, env_id, seeds, not args.stochastic, env_kwargs[env_id])
+            rate = float(np.mean([outcome.success for outcome in outcomes]))
+            tasks[env_id] = {
+                "success_rate": rate,
+                "action_mode": action_mode,
+                "episodes": [dataclasses.asdict(outcome) for outcome in outcomes],
+            }
         print(f"{env_id}: success rate {rate:.3f} over {n_episodes} episodes ({episodes}, {action_mode} actions)")
+        if args.alignment:
+            print(f"{env_id}: {alignment_summary(outcomes)}")
+        if args.output is not None:
+            from sb3_cql.benchmark.records import write_json
+
+            record = {"model": args.model, "algo": args.algo, "deterministic": not args.stochastic, "tasks": tasks}
+            write_json(args.output, record)  # after each task: a killed evaluation keeps the tasks it finished
 
 
 if __name__ == "__main__":

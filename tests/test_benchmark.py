@@ -101,6 +101,20 @@ def test_protocol_records_every_unit_and_makes_the_table_and_figures(quick):
     }
 
 
+def test_the_yaw_controllers_are_scripted_rows_in_the_tables_order(tmp_path):
+    bench = Bench(tmp_path)
+    bench.run("--algos", "pid-regrasp-aligned", "pid-regrasp-yaw", "--tasks", "Panda-v0", "--seeds", "117", "--episodes",
+              "1", "--results-dir", "scripted")  # fmt: skip
+    report = json.loads((tmp_path / "scripted" / "results.json").read_text())
+    assert report["training"] == []  # evaluated, never trained
+    assert {row: report["summary"][row]["Panda-v0"]["mean"] for row in report["summary"]} == {
+        "pid-regrasp-yaw": 1.0, "pid-regrasp-aligned": 1.0
+    }  # fmt: skip
+    table = (tmp_path / "scripted" / "table.md").read_text()
+    assert table.index("| PID-REGRASP-YAW |") < table.index("| PID-REGRASP-ALIGNED |")
+    assert (tmp_path / "scripted" / "figures" / "filmstrip_Panda-v0.png").is_file()
+
+
 def test_a_second_run_does_no_work_and_report_only_remakes_the_outputs(bench, quick):
     results, _ = quick
     args = ["--algos", "cql", "bc", "sac", "pid", "--n-timesteps", "200", "--eval-freq", "100", "--save-freq", "100",

@@ -101,6 +101,26 @@ def test_regrasping_policies_collect_with_the_regrasping_pd_controller():
     assert "dropped_distance" not in json.loads(plain.storage.metadata["controller"])
 
 
+def test_random_yaw_collection_records_its_yaws_and_is_reproducible():
+    spec = CollectionSpec(policy="noisy-regrasp-yaw", n_episodes=2, seed=5)
+    assert spec.controller == "pid-regrasp-yaw" and spec.noise == DEFAULT_NOISE
+    one = collect_dataset(spec, "sb3cql/Panda-v0/yaw-one-v0", workers=1, progress_bar=False)
+    two = collect_dataset(spec, "sb3cql/Panda-v0/yaw-two-v0", workers=2, progress_bar=False)
+    assert_same_data(one, two)  # the yaws of episode i come from (seed, i), whichever worker runs it
+    parameters = json.loads(one.storage.metadata["controller"])
+    assert parameters["yaw"].startswith("random") and parameters["yaw_range"] == [-np.pi / 2, np.pi / 2]
+    assert "SeedSequence(seed)" in parameters["yaw_seed"] and parameters["yaw_episode_seed"] == (
+        "episode i: PDController.seed((5, i))"
+    )
+    fixed = collect_dataset(dataclasses.replace(spec, policy="noisy-regrasp"), progress_bar=False)
+    assert "yaw" not in json.loads(fixed.storage.metadata["controller"])
+    # The same episodes (same resets, same noise generator) with another hand yaw: other actions.
+    np.testing.assert_array_equal(one[0].observations[0], fixed[0].observations[0])
+    assert not np.array_equal(one[0].actions[:20], fixed[0].actions[:20])
+    with pytest.raises(ValueError, match="pid-regrasp-aligned is a reference controller"):
+        CollectionSpec(policy="pid-regrasp-aligned")
+
+
 def test_existing_dataset_is_not_overwritten_without_asking():
     spec = CollectionSpec(policy="random", n_episodes=1)
     collect_dataset(spec, progress_bar=False)
@@ -261,6 +281,12 @@ def test_standard_ids_give_their_episodes_in_thousands():
 
     assert parse_dataset_id("sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0") == ("Panda-v0", "noisy-regrasp", "delta", 0, 1000)
     assert parse_dataset_id("sb3cql/Panda-v0/pid-v0") == ("Panda-v0", "pid", "absolute", 0, 10_000)
+    for policy in ("pid-regrasp-yaw", "noisy-regrasp-yaw"):  # names that begin with another policy's
+        yaw_id = f"sb3cql/PandaForce-v0/{policy}-delta-1k-v0"
+        assert parse_dataset_id(yaw_id) == ("PandaForce-v0", policy, "delta", 0, 1000)
+        assert standard_collection(yaw_id).controller == "pid-regrasp-yaw"
+    assert parse_dataset_id("sb3cql/PandaForce-v0/pid-regrasp-aligned-v0") is None  # a reference, never collected
+    assert standard_collection("sb3cql/PandaForce-v0/pid-regrasp-aligned-v0") is None
     for not_standard in ("sb3cql/Panda-v0/pid-0k-v0", "sb3cql/Panda-v0/pid-1.5k-v0", "sb3cql/Panda-v0/pid-k-v0"):
         assert parse_dataset_id(not_standard) is None
     assert dataset_id("Panda-v0", "noisy-regrasp", "delta", episodes=1000) == "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0"

@@ -252,6 +252,158 @@ def test_pd_controller_does_not_disturb_the_env(make_env):
     assert unwrapped.sim.client.getJointStates(unwrapped.robot.body, list(range(12))) == before
 
 
+def run_stateful(env: gym.Env, controller: envs.PDController, seed: int) -> dict[str, np.ndarray]:
+    """One episode reset with ``seed``, the controller seeded with it and its state passed along, SB3-style: each
+    step's observation, action, attempt yaw and dropped flag, and whether it succeeded."""
+    controller.seed(seed)
+    observation, _ = env.reset(seed=seed)
+    steps = {"observations": [], "actions": [], "yaws": [], "dropped": []}
+    state, done, info = None, False, {}
+    while not done:
+        action, state = controller.predict(observation, state, np.array([not steps["actions"]]))
+        attempt = (0.0, False) if state is None else (state[0][0], state[1][0])  # the fixed yaw keeps no state
+        for key, value in zip(steps, (observation, action, *attempt), strict=True):
+            steps[key].append(value)
+        observation, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    return {**{key: np.array(value) for key, value in steps.items()}, "success": info["is_success"]}
+
+
+def closing_steps(actions: np.ndarray, action_mode: str) -> np.ndarray:
+    """The steps at which the controller starts closing the gripper (its finger action turns from open to closed)."""
+    closed = actions[:, -1] < 0 if action_mode == "delta" else actions[:, -1] == 0
+    return np.flatnonzero(closed[1:] & ~closed[:-1]) + 1
+
+
+def object_axis(observation: np.ndarray) -> np.ndarray:
+    return envs.pd_controller._axis(observation[envs.OBSERVATION_SLICES["object_orientation"]].astype(np.float64), 2)
+
+
+def closing_angle(observation: np.ndarray) -> float:
+    """The angle (degrees, 0 to 90) between the horizontal line through the two fingers and the object's axis."""
+    fingers = observation[envs.OBSERVATION_SLICES["finger_offsets"]]
+    across, axis = (fingers[:3] - fingers[3:])[:2], object_axis(observation)[:2]
+    cosine = abs(across @ axis) / (np.linalg.norm(across) * np.linalg.norm(axis))
+    return float(np.degrees(np.arccos(min(cosine, 1.0))))
+
+
+def test_random_yaw_is_uniform_over_a_half_turn_at_each_episode_start(make_env):
+    env = make_env("Panda-v0")
+    observation, _ = env.reset(seed=0)
+    controller = envs.PDController.for_env(env, **envs.CONTROLLERS["pid-regrasp-yaw"], seed=0)
+    _, (yaws, dropped) = controller.predict(np.tile(observation, (1000, 1)))  # no state: each an episode's start
+    half = envs.pd_controller.YAW_HALF_RANGE
+    assert half == pytest.approx(np.pi / 2) and not dropped.any()
+    assert yaws.min() >= -half and yaws.max() < half
+    counts, _ = np.histogram(yaws, bins=5, range=(-half, half))
+    assert np.all(np.abs(counts - 200) < 50), counts  # 4 standard deviations of a uniform draw's bin count
+
+
+def test_random_yaw_is_held_through_an_attempt_and_redrawn_at_a_regrasp(make_env):
+    env = make_env("PandaForce-v0")
+    controller = envs.PDController.for_env(env, **envs.CONTROLLERS["pid-regrasp-yaw"])
+    episode = run_stateful(env, controller, seed=0)
+    yaws, dropped = episode["yaws"], episode["dropped"]
+    attempts = np.concatenate([[0], np.flatnonzero(dropped[1:] & ~dropped[:-1]) + 1])
+    assert len(attempts) >= 2  # the knock-out made it regrasp
+    changes = np.flatnonzero(np.diff(yaws)) + 1
+    np.testing.assert_array_equal(changes, attempts[1:])  # a new yaw at each new attempt and at no other step
+    assert len(set(yaws[attempts].tolist())) == len(attempts)
+    # It turns while hovering: at each closing the hand has the attempt's yaw.
+    hand_yaws = [envs.pd_controller.hand_yaw(o[envs.OBSERVATION_SLICES["ee_orientation"]]) for o in episode["observations"]]
+    for step in closing_steps(episode["actions"], "absolute"):
+        assert abs(hand_yaws[step] - yaws[step]) < envs.pd_controller.YAW_TOLERANCE
+
+
+def test_random_yaw_is_seeded(make_env):
+    env = make_env("PandaForce-v0", action_mode="delta")
+    controller = envs.PDController.for_env(env, **envs.CONTROLLERS["pid-regrasp-yaw"])
+    first, again = (run_stateful(env, controller, seed=3) for _ in range(2))
+    np.testing.assert_array_equal(first["actions"], again["actions"])
+    np.testing.assert_array_equal(first["yaws"], again["yaws"])
+    other = envs.PDController.for_env(env, **envs.CONTROLLERS["pid-regrasp-yaw"], seed=4)
+    observation, _ = env.reset(seed=3)
+    assert other.predict(observation)[1][0][0] != first["yaws"][0]  # another seed, another yaw of the same episode
+    # A generator is drawn from as it is; a seed gives a stream apart from the env's (whose pose draws it would repeat).
+    other.seed(np.random.default_rng(3))
+    assert other.predict(observation)[1][0][0] == pytest.approx(np.random.default_rng(3).uniform(-np.pi / 2, np.pi / 2))
+    controller.seed(3)
+    assert controller.predict(observation)[1][0][0] != pytest.approx(np.random.default_rng(3).uniform(-np.pi / 2, np.pi / 2))
+
+
+def test_episode_start_resets_the_attempt(make_env):
+    env = make_env("Panda-v0")
+    observation, _ = env.reset(seed=0)
+    controller = envs.PDController.for_env(env, **envs.CONTROLLERS["pid-regrasp-yaw"], seed=0)
+    last_episode = (np.array([0.3]), np.array([True]))  # the previous episode ended in a drop, at yaw 0.3
+    _, (kept, dropped) = controller.predict(observation, last_episode, np.array([False]))
+    assert kept[0] == 0.3 and not dropped[0]  # the same episode: an open hand above the object is no new attempt
+    controller.seed(0)
+    first_draw = controller.predict(observation)[1][0][0]
+    controller.seed(0)
+    _, (yaw, dropped) = controller.predict(observation, last_episode, np.array([True]))
+    assert yaw[0] == first_draw != 0.3 and not dropped[0]
+    with pytest.raises(ValueError, match="yaw must be one of"):
+        envs.PDController(yaw="sideways")
+
+
+@pytest.mark.parametrize("action_mode", ACTION_MODES)
+def test_random_yaw_controller_solves_panda(action_mode, make_env):
+    env = make_env("Panda-v0", action_mode=action_mode)
+    controller = envs.PDController.for_env(env, **envs.CONTROLLERS["pid-regrasp-yaw"])
+    episodes = [run_stateful(env, controller, seed) for seed in range(3)]
+    assert all(episode["success"] for episode in episodes)
+    assert len({episode["yaws"][0] for episode in episodes}) == 3 and max(abs(e["yaws"][0]) for e in episodes) > 0.3
+
+
+def test_aligned_controller_closes_across_a_lying_cylinder(make_env):
+    env = make_env("PandaForce-v0")
+    lying = np.cos(envs.pd_controller.LYING_TILT)
+    angles = {}
+    for name in ("pid-regrasp-aligned", "pid-regrasp"):
+        episode = run_stateful(env, envs.PDController.for_env(env, **envs.CONTROLLERS[name]), seed=0)
+        steps = [step for step in closing_steps(episode["actions"], "absolute")
+                 if abs(object_axis(episode["observations"][step])[2]) < lying]  # fmt: skip
+        assert steps, f"{name} never closed on the knocked-out cylinder lying on its side"
+        angles[name] = closing_angle(episode["observations"][steps[0]])
+    assert angles["pid-regrasp-aligned"] > 80  # the fingers close across the axis
+    assert angles["pid-regrasp"] < 30  # with the fixed yaw they closed along it, in this episode
+
+
+def test_closing_angles_measure_the_fingers_against_a_lying_cylinders_axis(make_env):
+    env = make_env("PandaForce-v0")
+    measured = {}
+    for name in ("pid-regrasp-aligned", "pid-regrasp"):
+        episode = run_stateful(env, envs.PDController.for_env(env, **envs.CONTROLLERS[name]), seed=0)
+        angles = envs.pd_controller.closing_angles(episode["observations"])
+        closings = closing_steps(episode["actions"], "absolute")
+        # One angle per closing of the open hand on the object (the fingers move a step after the action), None
+        # for the upright cylinder of the first grasp, the angle of the line through the fingers for a lying one.
+        assert len(angles) == len(closings) >= 2 and angles[0] is None
+        steps = envs.pd_controller.closing_steps(episode["observations"])
+        assert np.abs(steps - np.asarray(closings)).max() <= 5  # the width passes 5 mm less within a few steps
+        for angle, step in zip(angles[1:], closings[1:], strict=True):
+            assert angle == pytest.approx(closing_angle(episode["observations"][step]), abs=3.0)
+        measured[name] = angles[1]
+    assert measured["pid-regrasp-aligned"] > 80 and measured["pid-regrasp"] < 30
+    upright = np.zeros(29)
+    upright[envs.OBSERVATION_SLICES["object_orientation"]] = [0.0, 0.0, 0.0, 1.0]
+    upright[envs.OBSERVATION_SLICES["ee_orientation"]] = envs.pd_controller.HAND_ORIENTATION
+    assert envs.pd_controller.closing_angle(upright) is None
+    lying = upright.copy()  # the cylinder's axis along the world y axis, the fingers' closing direction
+    lying[envs.OBSERVATION_SLICES["object_orientation"]] = [np.sin(np.pi / 4), 0.0, 0.0, np.cos(np.pi / 4)]
+    assert envs.pd_controller.closing_angle(lying) == pytest.approx(0.0, abs=1e-6)
+    lying[envs.OBSERVATION_SLICES["ee_orientation"]] = envs.pd_controller.hand_orientation(np.pi / 3)
+    assert envs.pd_controller.closing_angle(lying) == pytest.approx(60.0)
+
+
+def test_reference_controllers_are_named_controllers():
+    assert set(envs.pd_controller.REFERENCE_CONTROLLERS) <= set(envs.CONTROLLERS)
+    assert envs.pd_controller.aligned_yaw(np.array([0.0, 0.0, 0.0, 1.0])) == 0.0  # upright: the fixed yaw
+    along_y = np.array([np.sin(np.pi / 4), 0.0, 0.0, np.cos(np.pi / 4)])  # lying along the world y axis (x rotation)
+    assert abs(envs.pd_controller.aligned_yaw(along_y)) == pytest.approx(np.pi / 2)
+
+
 def clearance(position: np.ndarray, radius: float) -> float:
     """Height of the object's centre above what it can rest on (the tray floor or the ground), minus the
     cylinder's radius: >= 0 for an object at rest, negative while it is pressed into that surface."""

@@ -1,5 +1,6 @@
 """python -m sb3_cql.evaluate: the action mode read from the model, per-episode seeds, and bad input as one-line errors."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -102,9 +103,9 @@ class Recorder:
         self.policy = policy
         self.observations = []
 
-    def predict(self, observation, deterministic=True):
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
         self.observations.append(observation)
-        return self.policy.predict(observation, deterministic=deterministic)
+        return self.policy.predict(observation, state, episode_start, deterministic=deterministic)
 
 
 def test_each_episode_is_reset_with_its_seed():
@@ -128,6 +129,54 @@ def test_each_episode_is_reset_with_its_seed():
     np.testing.assert_array_equal(first_observations[0], first_observations[2])
     assert not np.array_equal(first_observations[0], first_observations[1])  # another seed, another object pose
     assert success_rate(controller, "PandaPerturbed-v0", seeds=seeds) == np.mean(by_hand)
+
+
+def test_the_new_pd_controllers_are_evaluated_by_name(capsys):
+    main(["pid-regrasp-yaw", "--env", "Panda-v0", "--seeds", "0", "--env-kwargs", "action_mode:'delta'"])
+    main(["pid-regrasp-aligned", "--env", "Panda-v0", "-n", "1"])
+    assert capsys.readouterr().out.splitlines()[-2:] == [
+        "Panda-v0: success rate 1.000 over 1 episodes (seeds 0, delta actions)",
+        "Panda-v0: success rate 1.000 over 1 episodes (seed 0, absolute actions)",
+    ]
+
+
+def test_a_controllers_random_yaws_are_seeded_with_each_episodes_seed(monkeypatch):
+    controller = load_policy("pid-regrasp-yaw", None, "Panda-v0")
+    predict, first_yaws = controller.predict, []
+
+    def recording(observation, state=None, episode_start=None, deterministic=True):
+        action, state = predict(observation, state, episode_start, deterministic)
+        if episode_start[0]:
+            first_yaws.append(state[0][0])
+        return action, state
+
+    monkeypatch.setattr(controller, "predict", recording)
+    assert episode_successes(controller, "Panda-v0", [5, 6, 5]) == [True, True, True]
+    assert first_yaws[0] == first_yaws[2] != first_yaws[1]  # an episode is replayed by its seed, yaw included
+
+
+def test_alignment_shows_how_the_fingers_closed_on_the_lying_cylinder(tmp_path, capsys):
+    for name in ("pid-regrasp-aligned", "pid-regrasp"):
+        main([name, "--env", "PandaForce-v0", "--seeds", "0", "--alignment", "--output", str(tmp_path / f"{name}.json")])
+    lines = capsys.readouterr().out.splitlines()
+    records = {name: json.loads((tmp_path / f"{name}.json").read_text()) for name in ("pid-regrasp-aligned", "pid-regrasp")}
+    for name, record in records.items():
+        (episode,) = record["tasks"]["PandaForce-v0"]["episodes"]
+        assert episode["seed"] == 0 and record["model"] == name
+        assert episode["closing_angles"][0] is None  # the first grasp, of the upright cylinder
+        angles = [angle for angle in episode["closing_angles"] if angle is not None]
+        assert angles, "the knocked-out cylinder was never grasped again"
+        if name == "pid-regrasp-aligned":
+            assert all(angle >= 80 for angle in angles)
+        else:  # the fixed yaw first closes along the axis of the cylinder as it fell
+            assert angles[0] < 10
+        across = sum(angle >= 80 for angle in angles)
+        line = lines[[line.startswith("PandaForce-v0: success") for line in lines].index(True) + 1]
+        assert line.endswith(f"80-90: {across} ({len(angles)} in 1 episodes; 1 on an upright cylinder)"), line
+        lines = lines[lines.index(line) + 1 :]
+    with pytest.raises(SystemExit):
+        main(["pid", "--env", "Panda-v0", "-n", "1", "--alignment"])
+    assert "--alignment and --output need --seeds" in capsys.readouterr().err
 
 
 def test_seeds_are_a_range_or_a_list(capsys):

@@ -2,7 +2,7 @@
 (RL-Zoo3, our hyperparams/), evaluate the best model of each run and the PD controller on the three tasks, and make
 the table and figures.
 
-    python -m sb3_cql.benchmark                                   # 5 seeds, cql bc pid sac, 100 episodes a task
+    python -m sb3_cql.benchmark                                   # 5 seeds, cql bc pid pid-regrasp sac, 100 episodes a task
     python -m sb3_cql.benchmark --quick                           # 1 seed, 2,000 steps, 20 episodes: minutes
     python -m sb3_cql.benchmark --algos cql pid --seeds 117 573 --workers 2
     python -m sb3_cql.benchmark --report-only                     # table and figures again from results/
@@ -41,7 +41,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m sb3_cql.benchmark", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--algos", nargs="+", default=list(DEFAULT_ALGOS), help="RL-Zoo3 algorithms, and pid, pid-regrasp")
+    parser.add_argument("--algos", nargs="+", default=list(DEFAULT_ALGOS),
+                        help=f"RL-Zoo3 algorithms, and the PD controllers: {', '.join(envs.CONTROLLERS)}")  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=None, help=f"default: {' '.join(map(str, THESIS_SEEDS))}")
     parser.add_argument("--tasks", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
     parser.add_argument("--results-dir", default="results")

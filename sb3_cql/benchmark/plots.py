@@ -150,6 +150,31 @@ def final_success(summary: dict[str, dict[str, Any]], evaluations: list[dict[str
     plt.close(figure)
 
 
+def alignment_histograms(rows: dict[str, list[dict[str, Any]]], task: str, path: Path) -> None:
+    """How the fingers closed on a lying cylinder, one panel a row: the share of its closings in each bin of
+    ``sb3_cql.evaluate.ANGLE_BINS`` (the angle between the closing direction and the cylinder's axis; 90: across it),
+    pooled over the row's records (``python -m sb3_cql.evaluate ... --output`` files, one a seed), with the row's mean
+    success rate on ``task`` in its title."""
+    from sb3_cql.evaluate import ANGLE_BINS  # the evaluation's bins, one home
+
+    figure, axes = plt.subplots(1, len(rows), figsize=(3.0 * len(rows), 3.2), sharey=True, squeeze=False)
+    for axis, (label, records) in zip(axes[0], rows.items(), strict=True):
+        episodes = [episode for record in records for episode in record["tasks"][task]["episodes"]]
+        angles = [angle for episode in episodes for angle in episode["closing_angles"] if angle is not None]
+        counts, _ = np.histogram(angles, bins=ANGLE_BINS)
+        axis.bar(ANGLE_BINS[:-1], counts / max(len(angles), 1), width=np.diff(ANGLE_BINS), align="edge", edgecolor="black")
+        rate = np.mean([record["tasks"][task]["success_rate"] for record in records])
+        seeds = f"{len(records)} seed{'s' if len(records) > 1 else ''}"
+        axis.set(title=f"{label}\nsuccess {rate:.2f} ({seeds})", xlim=(0, 90))
+        axis.set_xticks(ANGLE_BINS[::3])
+        axis.set_xlabel(f"closing angle (deg), {len(angles)} closings")
+    axes[0][0].set_ylabel("share of closings")
+    figure.suptitle(f"{task}: how the fingers closed on a lying cylinder (90: across its axis)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
 def episode_frames(
     policy: Any, env_id: str, seed: int, env_kwargs: dict[str, Any], n_frames: int = FILMSTRIP_FRAMES
 ) -> tuple[list[np.ndarray], list[int]]:
@@ -161,13 +186,15 @@ def episode_frames(
     def play(render_at: set[int] | None) -> tuple[int, list[np.ndarray]]:
         env = gym.make(env_id, render_mode="rgb_array", **env_kwargs)
         observation, _ = env.reset(seed=seed)
-        frames, step, done = [], 0, False
+        if isinstance(policy, envs.PDController):  # its random yaws, the same in both plays
+            policy.seed(seed)
+        frames, step, done, state = [], 0, False, None
         while True:
             if render_at is not None and step in render_at:
                 frames.append(env.render())
             if done:
                 break
-            action, _ = policy.predict(observation, deterministic=True)
+            action, state = policy.predict(observation, state, np.array([step == 0]), deterministic=True)
             observation, _, terminated, truncated, _ = env.step(action)
             done, step = terminated or truncated, step + 1
         env.close()

@@ -35,11 +35,12 @@ TRAIN_ENV = "Panda-v0"
 PR_SET_PDEATHSIG = 1
 #: The thesis's five seeds.
 THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
-#: The scripted PD controllers (the thesis's, and ours that regrasps, whose noisy runs are the data): evaluated,
-#: never trained.
+#: The scripted PD controllers (``envs.CONTROLLERS``: the thesis's, ours that regrasps, whose noisy runs are the data,
+#: the same with a random yaw at each attempt, and the reference that aligns the fingers with a fallen cylinder):
+#: evaluated, never trained.
 SCRIPTED = tuple(envs.CONTROLLERS)
-#: Rows of the thesis's Table 5.1, BC, and the regrasping PD controller.
-DEFAULT_ALGOS = ("cql", "bc", *SCRIPTED, "sac")
+#: Rows of the thesis's Table 5.1, BC, and the regrasping PD controller (the other scripted rows on request).
+DEFAULT_ALGOS = ("cql", "bc", "pid", "pid-regrasp", "sac")
 #: Lines of a failed zoo run's log shown in the error.
 LOG_TAIL_LINES = 40
 #: The zoo config of the fine-tuning runs (in our hyperparams/).
@@ -112,7 +113,7 @@ class Protocol:
     """The whole protocol: which algorithms and seeds, where, with how many workers.
 
     :param results: the results folder.
-    :param algos: RL-Zoo3 names of the algorithms, and ``pid`` / ``pid-regrasp`` for the PD controllers.
+    :param algos: RL-Zoo3 names of the algorithms, and the PD controllers' names (:data:`SCRIPTED`).
     :param seeds: training and evaluation seeds.
     :param tasks: evaluation tasks.
     :param settings: the settings the numbers depend on.

@@ -2,6 +2,7 @@
 
 python -m sb3_cql.data collect --env Panda-v0 --policy pid --episodes 10000 --seed 0 --workers 2
 python -m sb3_cql.data collect --env Panda-v0 --policy noisy --noise 0.03 --episodes 1000
+python -m sb3_cql.data collect --env PandaForce-v0 --policy noisy-regrasp-yaw --action-mode delta --episodes 1000
 python -m sb3_cql.data collect --env Panda-v0 --policy logs/sac/Panda-v0_1/best_model.zip --algo sac
 python -m sb3_cql.data mix --dataset-id sb3cql/Panda-v0/mixed-v0 sb3cql/Panda-v0/pid-v0 sb3cql/Panda-v0/noisy-v0
 python -m sb3_cql.data info sb3cql/Panda-v0/pid-v0

@@ -1,8 +1,8 @@
 """Collect behaviour-policy rollouts into Minari datasets, in parallel, resumably and atomically.
 
-Episode ``i`` of a collection is reset with ``seed + i`` and draws its noise from a generator seeded with
-``(seed, i)``, so a dataset does not depend on the number of workers and an interrupted collection resumes
-exactly where it stopped.
+Episode ``i`` of a collection is reset with ``seed + i``, draws its noise from a generator seeded with ``(seed, i)``
+and seeds a PD controller's random yaws with ``(seed, i)`` too (``PDController.seed``: a stream of their own), so a
+dataset does not depend on the number of workers and an interrupted collection resumes exactly where it stopped.
 
 Before it starts, a collection prints (on stderr) what it will do: the episodes, the workers, and about how long
 and how much disk it takes, from the measurements below; a resumed one says how many episodes it already has. On
@@ -41,6 +41,7 @@ from minari.utils import validate_datasets_to_combine
 from tqdm import tqdm
 
 import envs
+from envs.pd_controller import REFERENCE_CONTROLLERS
 from sb3_cql.data import ids
 from sb3_cql.data.ids import DEFAULT_NOISE, NOISY_POLICIES, POLICIES, SPEC_FILE
 from sb3_cql.data.replay import load_dataset
@@ -57,11 +58,16 @@ WRITE_EVERY = 50
 #: the noisy ones run most of them to the 700-step limit. Means over ``python -m sb3_cql.data collect --env ENV
 #: --policy POLICY --episodes N`` (2026-12-01) with N = 100 to 200 for Panda-v0's noisy policies and PD controller,
 #: 15 to 60 for the others; the action mode changes them by ~3% (Panda-v0's noisy-regrasp: 585 delta, 570 absolute).
+#: The random-yaw policies' are the means over both action modes of the first 10 episodes from seed 0 (``collect_dataset``
+#: with ``n_episodes=10``, 2026-12-02): a handful, so rougher (the modes' means differ by 1 to 4%).
 EPISODE_STEPS = {
-    "Panda-v0": {"pid": 178, "pid-regrasp": 178, "noisy": 629, "noisy-regrasp": 580, "random": 700},
-    "PandaForce-v0": {"pid": 700, "pid-regrasp": 674, "noisy": 652, "noisy-regrasp": 700, "random": 700},
-    "PandaPerturbed-v0": {"pid": 258, "pid-regrasp": 258, "noisy": 680, "noisy-regrasp": 642, "random": 700},
-}
+    "Panda-v0": {"pid": 178, "pid-regrasp": 178, "noisy": 629, "noisy-regrasp": 580, "pid-regrasp-yaw": 182,
+                 "noisy-regrasp-yaw": 614, "random": 700},
+    "PandaForce-v0": {"pid": 700, "pid-regrasp": 674, "noisy": 652, "noisy-regrasp": 700, "pid-regrasp-yaw": 696,
+                      "noisy-regrasp-yaw": 678, "random": 700},
+    "PandaPerturbed-v0": {"pid": 258, "pid-regrasp": 258, "noisy": 680, "noisy-regrasp": 642, "pid-regrasp-yaw": 184,
+                          "noisy-regrasp-yaw": 676, "random": 700},
+}  # fmt: skip
 #: Transitions/s of one worker running a PD controller (noisy or not): 1,255 in ``python benchmarks/collect_speed.py``
 #: (2026-11-22; 2,598 with 2 workers). Uniform random actions skip the controller's inverse kinematics: 1.8 to 2.2
 #: times faster in back-to-back collections (2026-12-01). A model policy's speed is not estimated.
@@ -77,8 +83,6 @@ BYTES_PER_EPISODE = 12_500
 BYTES_PER_TRANSITION = 175
 CLEAN_ACTION_BYTES_PER_TRANSITION = 45
 
-Policy = Callable[[np.ndarray, np.random.Generator], tuple[np.ndarray, np.ndarray | None]]
-
 
 @dataclasses.dataclass(frozen=True)
 class CollectionSpec:
@@ -86,8 +90,10 @@ class CollectionSpec:
 
     :param env_id: gymnasium id of the task.
     :param policy: ``"pid"``, ``"noisy"`` (PD with Gaussian noise on the executed arm targets), ``"pid-regrasp"``
-        and ``"noisy-regrasp"`` (the same with the PD controller that grasps a lost object again), ``"random"``
-        (uniform actions), or the path of a saved SB3 model.
+        and ``"noisy-regrasp"`` (the same with the PD controller that grasps a lost object again),
+        ``"pid-regrasp-yaw"`` and ``"noisy-regrasp-yaw"`` (the same with the hand's yaw drawn at random at each grasp
+        attempt, seeded with ``(seed, i)`` in episode ``i``), ``"random"`` (uniform actions), or the path of a saved
+        SB3 model.
     :param n_episodes: number of episodes.
     :param seed: episode ``i`` is reset with ``seed + i``.
     :param noise: standard deviation (rad) of the noise on the executed arm joint targets; ``None`` means
@@ -105,6 +111,8 @@ class CollectionSpec:
     algo: str | None = None
 
     def __post_init__(self) -> None:
+        if self.policy in REFERENCE_CONTROLLERS:
+            raise ValueError(f"{self.policy} is a reference controller (evaluated, never collected); the policies: {POLICIES}")
         if self.policy not in POLICIES and not Path(self.policy).is_file():
             raise ValueError(f"policy must be one of {POLICIES} or the path of a saved SB3 model, got {self.policy!r}")
         if self.policy not in POLICIES and self.algo is None:
@@ -130,14 +138,61 @@ class CollectionSpec:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
-def make_policy(spec: CollectionSpec, env: gym.Env) -> Policy:
-    """The behaviour policy of ``spec`` for ``env``: a function ``(observation, rng) -> (executed action,
-    clean action or None)``. The clean action is the policy's own before noise, kept for imitation."""
+class BehaviourPolicy:
+    """The behaviour policy of a collection in one env: :meth:`start` before each episode, then one call a step,
+    ``policy(observation, rng) -> (executed action, clean action or None)``, ``rng`` the episode's noise generator.
+    The clean action is the policy's own before noise, kept for imitation. A stateful policy's state (the attempt yaws
+    of a PD controller) goes from one step to the next as SB3's ``predict`` passes it.
+
+    :param predict: SB3's ``predict`` of the policy; ``None`` for uniform random actions.
+    :param action_space: the env's action space.
+    :param noise_scale: standard deviation of the Gaussian noise on each action component; ``None`` for none.
+    :param controller: the PD controller behind ``predict``, seeded at each episode's start.
+    """
+
+    def __init__(
+        self,
+        predict: Callable[..., tuple[np.ndarray, Any]] | None,
+        action_space: gym.spaces.Box,
+        noise_scale: np.ndarray | None = None,
+        controller: envs.PDController | None = None,
+    ) -> None:
+        self.predict = predict
+        self.action_space = action_space
+        self.noise_scale = noise_scale
+        self.controller = controller
+        self._state: Any = None
+        self._episode_start = True
+
+    def start(self, seed: int, index: int) -> None:
+        """Begin episode ``index`` of a collection from ``seed``: a new state, and the PD controller's random yaws
+        seeded with ``(seed, index)`` (``PDController.seed``), so that they do not depend on the workers."""
+        self._state, self._episode_start = None, True
+        if self.controller is not None:
+            self.controller.seed((seed, index))
+
+    def __call__(self, observation: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray | None]:
+        space = self.action_space
+        if self.predict is None:
+            return rng.uniform(space.low, space.high).astype(np.float32), None
+        episode_start = np.array([self._episode_start])
+        clean, self._state = self.predict(observation, self._state, episode_start, deterministic=True)
+        self._episode_start = False
+        if self.noise_scale is None:
+            return clean, None
+        executed = np.clip(clean + self.noise_scale * rng.standard_normal(self.noise_scale.shape), space.low, space.high)
+        return executed.astype(np.float32), clean
+
+
+def make_policy(spec: CollectionSpec, env: gym.Env) -> BehaviourPolicy:
+    """The behaviour policy of ``spec`` for ``env``."""
     action_space = env.action_space
     if spec.policy == "random":
-        return lambda observation, rng: (rng.uniform(action_space.low, action_space.high).astype(np.float32), None)
+        return BehaviourPolicy(None, action_space)
+    controller = None
     if spec.controller is not None:
-        predict = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller]).predict
+        controller = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller])
+        predict = controller.predict
     else:
         from rl_zoo3.utils import ALGOS
 
@@ -149,19 +204,13 @@ def make_policy(spec: CollectionSpec, env: gym.Env) -> Policy:
             raise ValueError(f"cannot load {spec.policy} as a {spec.algo} model: {error}") from error
         predict = model.predict
     if spec.noise == 0:
-        return lambda observation, rng: (predict(observation, deterministic=True)[0], None)
+        return BehaviourPolicy(predict, action_space, controller=controller)
     unwrapped = env.unwrapped
     # Noise is specified on the arm's joint targets (rad); a delta action moves a target by arm_max_delta.
     scale = np.zeros(action_space.shape, dtype=np.float64)
     n_arm = len(envs.robot.ARM_JOINTS)
     scale[:n_arm] = spec.noise / (unwrapped.config.arm_max_delta if unwrapped.action_mode == "delta" else 1.0)
-
-    def noisy_policy(observation: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        clean = predict(observation, deterministic=True)[0]
-        executed = np.clip(clean + scale * rng.standard_normal(scale.shape), action_space.low, action_space.high)
-        return executed.astype(np.float32), clean
-
-    return noisy_policy
+    return BehaviourPolicy(predict, action_space, scale, controller)
 
 
 _worker: dict[str, Any] = {}
@@ -187,6 +236,7 @@ def _run_episode(index: int) -> EpisodeBuffer:
     spec, env, policy = _worker["spec"], _worker["env"], _worker["policy"]
     rng = np.random.default_rng((spec.seed, index))
     observation, _ = env.reset(seed=spec.seed + index)
+    policy.start(spec.seed, index)
     observations, actions, clean_actions, rewards, terminations, truncations = [observation], [], [], [], [], []
     done = False
     while not done:
@@ -606,7 +656,10 @@ def _metadata(dataset_id: str, spec: CollectionSpec, successes: list[bool], env:
     if spec.controller is not None:
         controller = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller])
         try:
-            metadata["controller"] = json.dumps(controller.parameters())
+            parameters = controller.parameters()
         finally:
             controller.close()
+        if controller.yaw == "random":
+            parameters["yaw_episode_seed"] = f"episode i: PDController.seed(({spec.seed}, i))"
+        metadata["controller"] = json.dumps(parameters)
     return metadata

@@ -12,11 +12,13 @@ from minari.storage import get_dataset_path
 #: Minari namespace of every dataset this package writes.
 NAMESPACE = "sb3cql"
 #: Behaviour policies that :func:`~sb3_cql.data.collect_dataset` knows by name: the PD controllers
-#: (``envs.CONTROLLERS``: ``pid``, and ``pid-regrasp`` that grasps a lost object again), each with Gaussian noise on
-#: its arm targets (``noisy``, ``noisy-regrasp``), and uniform random actions.
-POLICIES = ("pid", "noisy", "pid-regrasp", "noisy-regrasp", "random")
+#: (``envs.CONTROLLERS``: ``pid``, ``pid-regrasp`` that grasps a lost object again, and ``pid-regrasp-yaw`` that
+#: does so with the hand's yaw drawn at random at each grasp attempt), each with Gaussian noise on its arm targets
+#: (``noisy``, ``noisy-regrasp``, ``noisy-regrasp-yaw``), and uniform random actions. Not the reference controllers
+#: (``envs.pd_controller.REFERENCE_CONTROLLERS``): they are evaluated, never imitated.
+POLICIES = ("pid", "noisy", "pid-regrasp", "noisy-regrasp", "pid-regrasp-yaw", "noisy-regrasp-yaw", "random")
 #: The noisy policies and the PD controller under each one's noise.
-NOISY_POLICIES = {"noisy": "pid", "noisy-regrasp": "pid-regrasp"}
+NOISY_POLICIES = {"noisy": "pid", "noisy-regrasp": "pid-regrasp", "noisy-regrasp-yaw": "pid-regrasp-yaw"}
 #: Standard deviation (rad) of the Gaussian noise the ``noisy`` policy adds to the PD controller's arm targets.
 DEFAULT_NOISE = 0.03
 #: Name of the file describing a collection in progress, in its ``.partial`` folder (to resume only the same one).
@@ -90,8 +92,10 @@ def dataset_exists(dataset_id: str) -> bool:
 def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int, int] | None:
     """``(env_id, policy, action_mode, version, episodes)`` of an id made by :func:`dataset_id` with a named policy,
     else ``None``: ``sb3cql/Panda-v0/noisy-delta-v0`` -> ``("Panda-v0", "noisy", "delta", 0, 10000)``,
-    ``sb3cql/Panda-v0/pid-2k-v0`` -> ``("Panda-v0", "pid", "absolute", 0, 2000)``."""
-    policies = "|".join(POLICIES)
+    ``sb3cql/Panda-v0/pid-2k-v0`` -> ``("Panda-v0", "pid", "absolute", 0, 2000)``,
+    ``sb3cql/PandaForce-v0/noisy-regrasp-yaw-delta-1k-v0`` -> ``("PandaForce-v0", "noisy-regrasp-yaw", "delta", 0,
+    1000)``."""
+    policies = "|".join(sorted(POLICIES, key=len, reverse=True))  # a name before any that begins it
     match = re.fullmatch(rf"{NAMESPACE}/([^/]+)/({policies})(-delta)?(?:-([1-9]\d*)k)?-v(\d+)", dataset_id)
     if match is None:
         return None
