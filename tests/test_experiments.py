@@ -20,15 +20,19 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch as th
+from stable_baselines3 import SAC
 
+import envs
 from sb3_cql import BC, CQL
-from sb3_cql.data import CollectionSpec, collect_dataset
+from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ("acting_noise", "action_drift", "bc_continued", "cql_from_clone", "gripper_reopenings", "q_probe",
-           "values_vs_returns")  # fmt: skip
+SCRIPTS = ("acting_noise", "action_drift", "bc_continued", "closing_values", "cql_from_clone", "gripper_reopenings",
+           "q_probe", "values_vs_returns")  # fmt: skip
 FINETUNED_STEPS = 700  # one Panda-v0 episode, cut by the time limit unless it succeeds
 DATASET = "sb3cql/Panda-v0/tiny-regrasp-delta-v0"
+YAW_DATASET = "sb3cql/PandaForce-v0/tiny-regrasp-yaw-delta-v0"
+CHUNK = 2
 TINY = {"batch_size": 16, "bc_steps": 1, "policy_kwargs": {"net_arch": [32]}}
 ACTION_DIM = 9
 FLOAT = r"-?\d+(?:\.\d+)?(?:e-?\d+)?"
@@ -50,7 +54,9 @@ def load_script(name: str):
 def inputs(tmp_path_factory):
     """A 2-episode delta-action dataset of the regrasping PD controller (one success, one episode that reopens) in a
     temporary MINARI_DATASETS_PATH, a clone of it trained for a few steps, saved as ``bc.zip``, and a calibrated CQL
-    model fine-tuned online for one episode, ``finetuned.zip`` with its online transitions ``finetuned_buffer.pkl``."""
+    model fine-tuned online for one episode, ``finetuned.zip`` with its online transitions ``finetuned_buffer.pkl``;
+    and 2 PandaForce-v0 episodes of the noisy regrasping controller with random yaws, with a chunked CQL model trained
+    a few steps on them, ``chunked.zip``."""
     root = tmp_path_factory.mktemp("experiments")
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MINARI_DATASETS_PATH", str(root / "datasets"))
@@ -66,6 +72,13 @@ def inputs(tmp_path_factory):
         finetuned.learn(FINETUNED_STEPS)
         finetuned.save(root / "finetuned.zip")
         finetuned.save_replay_buffer(root / "finetuned_buffer.pkl")
+        spec = CollectionSpec(policy="noisy-regrasp-yaw", n_episodes=2, env_id="PandaForce-v0",
+                              env_kwargs={"action_mode": "delta"})  # fmt: skip
+        collect_dataset(spec, YAW_DATASET, progress_bar=False)
+        chunked = CQL("MlpPolicy", gym.make("PandaForce-v0", action_mode="delta"), dataset=YAW_DATASET, action_chunk=CHUNK,
+                      reward_scale=4.0, reward_bias=-2.0, seed=0, **TINY)  # fmt: skip
+        chunked.learn(3)
+        chunked.save(root / "chunked.zip")
         yield root
 
 
@@ -77,6 +90,7 @@ def commands(root: Path) -> dict[str, list[str]]:
         "action_drift": [bc, "--dataset-id", DATASET, "--kwargs", tiny, "--every", "1", "--probes", "2",
                          "--probe-states", "64", "--log-dir", str(root / "action_drift")],
         "bc_continued": [bc, "1", "2", "1e-3", "16", DATASET, "--eval-episodes", "1", "--log-dir", str(root / "bc_continued")],
+        "closing_values": [str(root / "chunked.zip"), "--dataset", YAW_DATASET, "--episodes", "2"],
         "cql_from_clone": [bc, "2", "2", json.dumps({**TINY, "clip_backup": True}), DATASET, "--eval-episodes", "1",
                            "--log-dir", str(root / "cql_from_clone")],
         "gripper_reopenings": [DATASET],
@@ -178,6 +192,60 @@ def test_gripper_reopenings_counts_the_episodes(runs):
     assert line == f"{DATASET}: 2 episodes, success rate 0.500, 1 with a reopening (0 of them successful)"
 
 
+def test_closing_values_score_the_datas_closings_and_turns_on_a_lying_cylinder(runs, inputs):
+    lines = succeeded(runs, "closing_values")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+        episodes = list(load_dataset(YAW_DATASET).iterate_episodes())
+    angles = []  # the closings on a lying cylinder that leave room for a whole chunk of the data's actions
+    for episode in episodes:
+        steps = envs.pd_controller.closing_steps(episode.observations[:-1])
+        angles += [envs.pd_controller.closing_angle(episode.observations[step]) for step in steps
+                   if step + CHUNK <= len(episode.actions)]  # fmt: skip
+    angles = [angle for angle in angles if angle is not None]
+    assert angles, "the tiny data have no closing on a lying cylinder"
+    assert lines[0] == (f"{inputs / 'chunked.zip'} (action_chunk {CHUNK}) on {YAW_DATASET}, 2 episodes: "
+                        f"{len(angles)} closings on a lying cylinder")  # fmt: skip
+    assert lines[1].split()[:3] == ["angle", "(deg)", "closings"]
+    groups = {row.split()[0]: row.split()[1:] for row in lines[2:5]}
+    assert list(groups) == ["0-30", "30-60", "60-90"]
+    expected = [sum(low <= angle < high for angle in angles) for low, high in ((0, 30), (30, 60), (60, 90.01))]
+    assert [int(row[0]) for row in groups.values()] == expected
+    floor = -2.0 / (1 - 0.99)
+    for row in groups.values():  # the data's returns lie between the floor and a lift at once
+        assert row[1:] == ["-", "-", "-"] or (0 <= float(row[1]) <= 1 and floor - 0.05 <= float(row[2]) <= 2.0)
+    assert lines[5].startswith("rank correlation over the closings: critic's value vs data's return ")
+    assert re.fullmatch(r"\d+ hovering states more than 20 deg from a grasping yaw: value turned towards it minus "
+                        rf"away from it [+-]{FLOAT} \(std {FLOAT}, positive at {FLOAT} of the states\); the policy's "
+                        rf"own wrist action turns towards it at {FLOAT}", lines[6]), lines[6]  # fmt: skip
+    assert len(lines) == 7
+
+
+def test_closing_values_refuse_a_model_of_absolute_actions(inputs, tmp_path):
+    SAC("MlpPolicy", gym.make("Panda-v0"), policy_kwargs={"net_arch": [8]}).save(tmp_path / "absolute.zip")
+    with pytest.raises(SystemExit) as exit_:
+        load_script("closing_values").main([str(tmp_path / "absolute.zip"), "--algo", "sac", "--dataset", YAW_DATASET])
+    assert str(exit_.value.code).startswith("error: ") and "does not act in delta actions" in str(exit_.value.code)
+
+
+def test_alignment_figure_pools_a_rows_seeds(tmp_path, capsys):
+    def record(rate, angles):
+        episodes = [{"seed": 50000 + i, "success": i < 1, "closing_angles": [None, *angles]} for i in range(2)]
+        return {"tasks": {"PandaForce-v0": {"success_rate": rate, "episodes": episodes}}}
+
+    paths = [tmp_path / name for name in ("cql-seed1.json", "cql-seed2.json", "pid-regrasp-aligned.json")]
+    for path, (rate, angles) in zip(paths, [(0.5, [85.0]), (0.3, [5.0, 45.0]), (0.6, [89.0])], strict=True):
+        path.write_text(json.dumps(record(rate, angles)))
+    main = load_script("alignment_figure").main
+    main([*map(str, paths), "--output", str(tmp_path / "figure.png")])
+    assert capsys.readouterr().out == f"{tmp_path / 'figure.png'}: 2 rows (cql, pid-regrasp-aligned)\n"
+    assert (tmp_path / "figure.png").read_bytes().startswith(b"\x89PNG")
+    with pytest.raises(SystemExit) as exit_:
+        main([str(paths[0]), "--task", "Panda-v0", "--output", str(tmp_path / "other.png")])
+    assert exit_.value.code == f"error: {paths[0]}: no evaluation of Panda-v0 (sb3_cql.evaluate --output with --env Panda-v0)"
+    assert not (tmp_path / "other.png").exists()
+
+
 def test_q_probe_prints_q_at_data_perturbed_and_policy_actions(runs, inputs):
     lines = succeeded(runs, "q_probe")
     assert lines[0] == f"Logging to {inputs / 'q_probe'}"
@@ -253,7 +321,7 @@ def test_values_vs_returns_says_in_one_line_that_a_model_is_missing(tmp_path):
     assert str(exit_.value.code).startswith("error: ") and "\n" not in str(exit_.value.code)
 
 
-@pytest.mark.parametrize("name", SCRIPTS)
+@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure"])
 def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(["--help"])
@@ -276,6 +344,8 @@ def test_help_shows_the_usage(name, capsys):
         ("acting_noise", ["bc.zip", "--modes", "normal"], "argument --modes: unknown mode 'normal'"),
         ("acting_noise", ["bc.zip", "--seeds", "9-1"], "argument --seeds: '9-1' is an empty range"),
         ("values_vs_returns", ["model.zip"], "the following arguments are required: buffer"),
+        ("closing_values", ["model.zip", "--episodes", "0"], "argument --episodes: must be a positive integer, got 0"),
+        ("alignment_figure", ["record.json"], "the following arguments are required: --output"),
         ("values_vs_returns", ["model.zip", "buffer.pkl", "--offline-states", "0"], "must be a positive integer"),
     ],
 )

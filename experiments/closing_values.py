@@ -1,0 +1,184 @@
+"""What a trained critic makes of the hand's yaw on a knocked-out cylinder, read off a dataset's own episodes.
+
+Usage: python experiments/closing_values.py MODEL.zip [--algo cql] [--dataset ID] [--episodes N] [--threads N]
+
+Two readings, both at states of the dataset's episodes (its first ``--episodes``) where the cylinder lies on its side:
+
+- **At the closings** (``envs.pd_controller.closing_steps``): by the angle between the fingers' closing direction and
+  the cylinder's axis (90: across it), how often the closing lifted the cylinder (a success before the next
+  closing), the discounted return the data earned from there (``sb3_cql.common.returns_to_go`` with the model's
+  ``reward_scale``, ``reward_bias`` and ``gamma``: a failed episode cut at 700 steps sits at the floor
+  ``reward_bias / (1 - gamma)``), and the critics' value of the data's action (chunk) there (the twin critics'
+  minimum, in the same units). A critic that sees the payoff of a turned hand ranks the closings as the returns do.
+- **At the same state, turned either way**: at the states where the open hand hovers above the lying cylinder (the
+  point between the fingers within 3 cm of it horizontally, 5 to 25 cm above it; every 10th such step) more than 20
+  degrees from a yaw that grasps it, the policy's own deterministic action (chunk) with the wrist joint's delta set
+  to +1 in every action of the chunk, and to -1: towards that yaw and away from it (which sign turns which way is
+  read off the data). Printed: the critic's value of the first minus that of the second, and how often the
+  policy's own first wrist action turns towards the grasping yaw.
+
+Printed::
+
+    MODEL (action_chunk 1) on DATASET, 1000 episodes: 620 closings on a lying cylinder
+    angle (deg)  closings  lifted  data's return  critic's value
+        0-30         70    0.01         -197.1          -430.2
+    ...
+    rank correlation over the closings: critic's value vs data's return 0.10, vs angle 0.02; data's return vs angle 0.05
+    1385 hovering states more than 20 deg from a grasping yaw: value turned towards it minus away from it +0.01 ...
+
+The model must act in delta actions (``action_mode: delta``), whose wrist component turns the hand. Nothing is
+written; torch runs ``--threads`` threads (1 by default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+import numpy as np
+import torch as th
+from _cli import positive_int
+from rl_zoo3 import ALGOS
+
+import envs
+import sb3_cql  # noqa: F401  (registers cql and bc with the zoo)
+from envs.pd_controller import GRIPPER_OPEN_WIDTH, aligned_yaw, closing_angle, closing_steps, hand_yaw
+from sb3_cql.common import returns_to_go
+from sb3_cql.data import DatasetError, load_dataset
+
+WRIST = 6  # index of the wrist joint (panda_joint7) in the 9-D joint action
+ANGLE_GROUPS = ((0, 30), (30, 60), (60, 90))
+TURN_NEEDED = np.radians(20)
+HOVER_XY, HOVER_HEIGHTS, HOVER_EVERY = 0.03, (0.05, 0.25), 10
+SLICES = envs.OBSERVATION_SLICES
+
+
+def values(model: Any, observations: np.ndarray, chunks: np.ndarray) -> np.ndarray:
+    """The twin critics' minimum value of each observation with its flattened action chunk."""
+    with th.no_grad():
+        obs = th.as_tensor(observations, dtype=th.float32, device=model.device)
+        act = th.as_tensor(chunks, dtype=th.float32, device=model.device)
+        return th.cat(model.critic(obs, act), dim=1).min(dim=1).values.cpu().numpy()
+
+
+def policy_chunks(model: Any, observations: np.ndarray) -> np.ndarray:
+    """The deterministic policy's action chunks (flattened) at ``observations``."""
+    with th.no_grad():
+        obs = th.as_tensor(observations, dtype=th.float32, device=model.device)
+        return model.actor(obs, deterministic=True).cpu().numpy()
+
+
+def turn_to_grasp(observation: np.ndarray) -> float:
+    """The turn (rad, in [-pi/2, pi/2)) of the hand's yaw to the nearer yaw that grasps the lying cylinder."""
+    target = aligned_yaw(observation[SLICES["object_orientation"]])
+    return float((target - hand_yaw(observation[SLICES["ee_orientation"]]) + np.pi / 2) % np.pi - np.pi / 2)
+
+
+def hovering_steps(observations: np.ndarray) -> np.ndarray:
+    """Every ``HOVER_EVERY``-th step at which the open hand hovers above the object (see the module's docstring)."""
+    offsets = observations[:, SLICES["finger_offsets"]].reshape(len(observations), 2, 3).mean(axis=1)
+    widths = observations[:, SLICES["joint_positions"]][:, -2:].sum(axis=1)
+    hovering = (
+        (np.linalg.norm(offsets[:, :2], axis=1) < HOVER_XY)
+        & (offsets[:, 2] > HOVER_HEIGHTS[0])
+        & (offsets[:, 2] < HOVER_HEIGHTS[1])
+        & (widths >= GRIPPER_OPEN_WIDTH - 0.005)
+    )
+    return np.flatnonzero(hovering)[::HOVER_EVERY]
+
+
+def wrist_turn_sign(episodes: list[Any]) -> float:
+    """+1 if a positive wrist delta turns the hand's yaw up in the data, -1 if down."""
+    actions, turns = [], []
+    for episode in episodes:
+        yaws = np.array([hand_yaw(o[SLICES["ee_orientation"]]) for o in episode.observations])
+        turns.append((np.diff(yaws) + np.pi) % (2 * np.pi) - np.pi)
+        actions.append(episode.actions[:, WRIST])
+    return float(np.sign(np.corrcoef(np.concatenate(actions), np.concatenate(turns))[0, 1]))
+
+
+def spearman(a: np.ndarray, b: np.ndarray) -> float:
+    """Spearman's rank correlation (nan for fewer than two values or a constant one)."""
+    if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return float("nan")
+    return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python experiments/closing_values.py", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    parser.add_argument("model", help="a saved model with critics, trained in delta actions (.zip)")
+    parser.add_argument("--algo", default="cql", choices=sorted(ALGOS), help="its RL-Zoo3 name (cql)")
+    parser.add_argument("--dataset", default="sb3cql/PandaForce-v0/noisy-regrasp-yaw-delta-1k-v0", help="dataset id")
+    parser.add_argument("--episodes", type=positive_int, default=1000, help="the dataset's first N episodes (1000)")
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch threads (default 1)")
+    args = parser.parse_args(argv)
+    th.set_num_threads(args.threads)
+    try:
+        model = ALGOS[args.algo].load(args.model, device="cpu")
+        dataset = load_dataset(args.dataset)
+    except (ValueError, OSError, DatasetError) as error:
+        sys.exit(f"error: {error}")
+    space = model.action_space
+    if space.shape != (9,) or not (np.all(space.low == -1) and np.all(space.high == 1)):
+        sys.exit(f"error: {args.model} does not act in delta actions (its action space: {space})")
+    h = getattr(model.policy, "action_chunk", 1)
+    scale, bias = getattr(model, "reward_scale", 1.0), getattr(model, "reward_bias", 0.0)
+    episodes = list(dataset.iterate_episodes(range(min(args.episodes, dataset.total_episodes))))
+
+    closings: list[tuple[float, bool, float, np.ndarray, np.ndarray]] = []  # angle, lifted, return, obs, chunk
+    hovers: list[tuple[np.ndarray, float]] = []  # observation, turn to a grasping yaw
+    for episode in episodes:
+        observations, actions = episode.observations[:-1], episode.actions
+        returns = returns_to_go(scale * episode.rewards + bias, bool(episode.truncations[-1]), model.gamma)
+        lifts = np.flatnonzero(episode.rewards > 0)
+        steps = closing_steps(observations)
+        for step, next_closing in zip(steps, [*steps[1:], len(actions)], strict=False):  # none without a closing
+            angle = closing_angle(observations[step])
+            if angle is not None and step + h <= len(actions):
+                lifted = bool(np.any((lifts >= step) & (lifts < next_closing)))
+                closings.append((angle, lifted, returns[step], observations[step], actions[step : step + h].ravel()))
+        for step in hovering_steps(observations):
+            turn = turn_to_grasp(observations[step])
+            if closing_angle(observations[step]) is not None and abs(turn) > TURN_NEEDED:
+                hovers.append((observations[step], turn))
+
+    print(f"{args.model} (action_chunk {h}) on {args.dataset}, {len(episodes)} episodes: "
+          f"{len(closings)} closings on a lying cylinder")  # fmt: skip
+    if closings:
+        angles, lifted, returns = (np.array([closing[i] for closing in closings]) for i in range(3))
+        q = values(model, np.stack([c[3] for c in closings]), np.stack([c[4] for c in closings]))
+        print("angle (deg)  closings  lifted  data's return  critic's value")
+        for low, high in ANGLE_GROUPS:
+            group = (angles >= low) & ((angles < high) if high < 90 else (angles <= high))
+            if group.any():
+                print(f"{low:>6}-{high:<4} {group.sum():>9} {lifted[group].mean():>7.2f} {returns[group].mean():>14.1f} "
+                      f"{q[group].mean():>15.1f}")  # fmt: skip
+            else:
+                print(f"{low:>6}-{high:<4} {0:>9}       -              -               -")
+        print(f"rank correlation over the closings: critic's value vs data's return {spearman(q, returns):.2f}, "
+              f"vs angle {spearman(q, angles):.2f}; data's return vs angle {spearman(returns, angles):.2f}")  # fmt: skip
+    if not hovers:
+        print("no hovering states more than 20 deg from a grasping yaw")
+        return
+    observations = np.stack([observation for observation, _ in hovers])
+    towards = np.sign([turn for _, turn in hovers]) * wrist_turn_sign(episodes)  # the wrist delta's sign that turns towards
+    own = policy_chunks(model, observations).reshape(len(hovers), h, -1)
+    turned = {}
+    for name, sign in (("towards", towards), ("away", -towards)):
+        chunk = own.copy()
+        chunk[:, :, WRIST] = sign[:, None]
+        turned[name] = values(model, observations, chunk.reshape(len(hovers), -1))
+    difference = turned["towards"] - turned["away"]
+    print(
+        f"{len(hovers)} hovering states more than 20 deg from a grasping yaw: value turned towards it minus away from "
+        f"it {difference.mean():+.2f} (std {difference.std():.2f}, positive at {np.mean(difference > 0):.2f} of the "
+        f"states); the policy's own wrist action turns towards it at {np.mean(np.sign(own[:, 0, WRIST]) == towards):.2f}"
+    )
+
+
+if __name__ == "__main__":
+    main()
