@@ -5,7 +5,9 @@ Usage: python experiments/alignment_figure.py RECORD.json [RECORD.json ...] --ou
 One panel a row: the share of the row's closings on a lying cylinder in each 10-degree bin of the angle between the
 fingers' closing direction and the cylinder's axis (90: across it), on ``--task`` (PandaForce-v0), with the row's
 mean success rate there. Files named ``ROW-seedN.json`` are one row, pooled over their seeds; any other file is a
-row of its own. The rows are drawn in the order of the files given. Printed: the figure's path and its rows.
+row of its own. The rows are drawn in the order of the files given. Printed: the figure's path and its rows, then a
+line a row: each task's mean success rate over the row's files (and each file's), and the share of ``--task``'s
+closings on a lying cylinder at 60 degrees or more to its axis.
 """
 
 from __future__ import annotations
@@ -48,6 +50,22 @@ def main(argv: list[str] | None = None) -> None:
     rows = read_rows(args.records, args.task)
     alignment_histograms(rows, args.task, args.output)
     print(f"{args.output}: {len(rows)} rows ({', '.join(rows)})")
+    for row, records in rows.items():
+        print(f"{row}: {summary(records, args.task)}")
+
+
+def summary(records: list[dict[str, Any]], task: str) -> str:
+    """One line on a row's records: each task's success rate (the mean over the records, and each one's), and the
+    share of ``task``'s closings on a lying cylinder at 60 degrees or more to its axis."""
+    parts = []
+    for name in records[0]["tasks"]:
+        rates = [record["tasks"][name]["success_rate"] for record in records if name in record["tasks"]]
+        each = f" ({' '.join(f'{rate:.2f}' for rate in rates)})" if len(rates) > 1 else ""
+        parts.append(f"{name} {sum(rates) / len(rates):.2f}{each}")
+    episodes = [episode for record in records for episode in record["tasks"][task]["episodes"]]
+    angles = [angle for episode in episodes for angle in episode["closing_angles"] if angle is not None]
+    across = sum(angle >= 60 for angle in angles) / len(angles) if angles else float("nan")
+    return f"{', '.join(parts)}; {task}: {len(angles)} closings on a lying cylinder, {across:.2f} of them at 60-90 deg"
 
 
 if __name__ == "__main__":

@@ -238,7 +238,11 @@ def test_alignment_figure_pools_a_rows_seeds(tmp_path, capsys):
         path.write_text(json.dumps(record(rate, angles)))
     main = load_script("alignment_figure").main
     main([*map(str, paths), "--output", str(tmp_path / "figure.png")])
-    assert capsys.readouterr().out == f"{tmp_path / 'figure.png'}: 2 rows (cql, pid-regrasp-aligned)\n"
+    assert capsys.readouterr().out.splitlines() == [
+        f"{tmp_path / 'figure.png'}: 2 rows (cql, pid-regrasp-aligned)",
+        "cql: PandaForce-v0 0.40 (0.50 0.30); PandaForce-v0: 6 closings on a lying cylinder, 0.33 of them at 60-90 deg",
+        "pid-regrasp-aligned: PandaForce-v0 0.60; PandaForce-v0: 2 closings on a lying cylinder, 1.00 of them at 60-90 deg",
+    ]
     assert (tmp_path / "figure.png").read_bytes().startswith(b"\x89PNG")
     with pytest.raises(SystemExit) as exit_:
         main([str(paths[0]), "--task", "Panda-v0", "--output", str(tmp_path / "other.png")])
