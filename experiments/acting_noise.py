@@ -24,6 +24,9 @@ delta mode the data's gripper commands are +1 open, -1 close: a flipped sign ope
       |sample - mean| [...]
       finger sign flips [...]
 
+A model of action chunks (``action_chunk`` > 1) is asked without a state at each step, so it acts with the first
+action of a new chunk at every step (closed loop), where ``sb3_cql.evaluate`` runs each chunk open loop.
+
 Use seeds outside the protocol's evaluation seeds (117, 12321, 7456, 3426, 573) and outside ``--seeds`` of any
 evaluation the findings compare with; nothing is written.
 """
