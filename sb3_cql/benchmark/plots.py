@@ -151,24 +151,29 @@ def final_success(summary: dict[str, dict[str, Any]], evaluations: list[dict[str
 
 
 def alignment_histograms(rows: dict[str, list[dict[str, Any]]], task: str, path: Path) -> None:
-    """How the fingers closed on a lying cylinder, one panel a row: the share of its closings in each bin of
+    """How the fingers closed on a lying cylinder, one panel a row (five a line): the share of its closings in each bin of
     ``sb3_cql.evaluate.ANGLE_BINS`` (the angle between the closing direction and the cylinder's axis; 90: across it),
     pooled over the row's records (``python -m sb3_cql.evaluate ... --output`` files, one a seed), with the row's mean
     success rate on ``task`` in its title."""
     from sb3_cql.evaluate import ANGLE_BINS  # the evaluation's bins, one home
 
-    figure, axes = plt.subplots(1, len(rows), figsize=(3.0 * len(rows), 3.2), sharey=True, squeeze=False)
-    for axis, (label, records) in zip(axes[0], rows.items(), strict=True):
+    columns = min(len(rows), 5)
+    lines = -(-len(rows) // columns)
+    figure, axes = plt.subplots(lines, columns, figsize=(3.0 * columns, 3.0 * lines + 0.4), sharey=True, squeeze=False)
+    for axis in axes.flat[len(rows) :]:
+        axis.set_visible(False)
+    for axis, (label, records) in zip(axes.flat, rows.items(), strict=False):
         episodes = [episode for record in records for episode in record["tasks"][task]["episodes"]]
         angles = [angle for episode in episodes for angle in episode["closing_angles"] if angle is not None]
         counts, _ = np.histogram(angles, bins=ANGLE_BINS)
         axis.bar(ANGLE_BINS[:-1], counts / max(len(angles), 1), width=np.diff(ANGLE_BINS), align="edge", edgecolor="black")
         rate = np.mean([record["tasks"][task]["success_rate"] for record in records])
-        seeds = f"{len(records)} seed{'s' if len(records) > 1 else ''}"
-        axis.set(title=f"{label}\nsuccess {rate:.2f} ({seeds})", xlim=(0, 90))
+        runs = f"{len(records)} run{'s' if len(records) > 1 else ''}"
+        axis.set(title=f"{label}\nsuccess {rate:.2f} ({runs})", xlim=(0, 90))
         axis.set_xticks(ANGLE_BINS[::3])
         axis.set_xlabel(f"closing angle (deg), {len(angles)} closings")
-    axes[0][0].set_ylabel("share of closings")
+    for axis in axes[:, 0]:
+        axis.set_ylabel("share of closings")
     figure.suptitle(f"{task}: how the fingers closed on a lying cylinder (90: across its axis)")
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
