@@ -40,6 +40,7 @@ import numpy as np
 import torch as th
 from _cli import positive_int
 from rl_zoo3 import ALGOS
+from scipy import stats
 
 import envs
 import sb3_cql  # noqa: F401  (registers cql and bc with the zoo)
@@ -99,10 +100,10 @@ def wrist_turn_sign(episodes: list[Any]) -> float:
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> float:
-    """Spearman's rank correlation (nan for fewer than two values or a constant one)."""
+    """Spearman's rank correlation (scipy's; nan for fewer than two values or a constant one)."""
     if len(a) < 2 or np.ptp(a) == 0 or np.ptp(b) == 0:
         return float("nan")
-    return float(np.corrcoef(np.argsort(np.argsort(a)), np.argsort(np.argsort(b)))[0, 1])
+    return float(stats.spearmanr(a, b).statistic)
 
 
 def main(argv: list[str] | None = None) -> None:
