@@ -126,13 +126,18 @@ def succeeded(runs, name: str) -> list[str]:
 def test_acting_noise_prints_success_per_mode_and_the_samples_statistics(runs):
     lines = succeeded(runs, "acting_noise")
     per_dimension = rf"\[{FLOAT}(?: {FLOAT}){{{ACTION_DIM - 1}}}\]"
+    exploration = (rf"  wrist's 100-step change {FLOAT} deg \(RMS\); "
+                   r"closings on a lying cylinder in [01] episodes, [01] within 20 deg of across it")  # fmt: skip
     expected = [
         r"mean: success [01]\.000 \([01]/1\)",
+        exploration,
         r"sample: success [01]\.000 \([01]/1\)",
+        exploration,
         rf"  std before tanh {per_dimension}",
         rf"  \|sample - mean\| {per_dimension}",
         rf"  finger sign flips \[{FLOAT} {FLOAT}\]",
         r"normal:0\.1: success [01]\.000 \([01]/1\)",
+        exploration,
     ]
     assert len(lines) == len(expected), lines
     for line, pattern in zip(lines, expected, strict=True):
@@ -149,6 +154,25 @@ def test_acting_noise_modes_give_sb3_action_noise():
     correlated = make_noise("ou:0.5", 3)
     steps = np.array([correlated() for _ in range(200)])
     assert np.corrcoef(steps[:-1, 0], steps[1:, 0])[0, 1] > 0.5  # Ornstein-Uhlenbeck: correlated in time
+    noise = make_noise("held:0.5", 3, hold=4)
+    held = np.array([noise() for _ in range(12)])
+    assert (held[:4] == held[0]).all() and (held[4:8] == held[4]).all() and not (held[4] == held[0]).any()
+    pink = [np.array([make_noise("pink:0.5", 3, seq_len=100, seed=seed)() for _ in range(5)]) for seed in (7, 7, 8)]
+    np.testing.assert_array_equal(pink[0], pink[1])  # seeded: the same episode seed, the same noise
+    assert not np.array_equal(pink[0], pink[2])
+
+
+def test_acting_noise_measures_the_wrists_100_step_change_from_the_joint_positions():
+    script = load_script("acting_noise")
+    observations = np.zeros((250, 29))
+    observations[:, envs.OBSERVATION_SLICES["joint_positions"].start + script.WRIST] = 0.01 * np.arange(250)
+    changes = script.wrist_changes(observations)
+    assert len(changes) == 15 and np.allclose(changes, 1.0)  # windows from steps 0, 10, ..., 140; 0.01 rad a step
+    line = script.exploration_line({"wrist_changes": np.radians([3.0, -3.0]), "lying_closings": [[10.0, 75.0], [], [40.0]]})
+    assert (
+        line
+        == "  wrist's 100-step change 3.0 deg (RMS); closings on a lying cylinder in 2 episodes, 1 within 20 deg of across it"
+    )
 
 
 def test_action_drift_prints_gradients_and_shifts(runs, inputs):

@@ -226,6 +226,40 @@ def test_a_chunked_model_trains_evaluates_plays_and_records_through_the_zoo(zoo)
     assert "Panda-v0" in zoo.run(str(model), "--algo", "cql", "-n", "1", "--env", "Panda-v0", module="sb3_cql.evaluate")
 
 
+def test_a_chunked_model_fine_tunes_with_the_configs_chunked_settings_and_continues_from_a_checkpoint(zoo):
+    """cql_finetune.yml's ``chunked`` entry applies to a model of action chunks, below --hyperparams: one gradient step
+    and one decision per chunk, pink noise seeded by the run's seed; the online transitions keep single steps, sampled
+    as chunks, and a checkpoint continues with them."""
+    zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "20", "--eval-freq", "-1", "-f", "chunked-offline", "--seed", "0",
+            *TINY, "action_chunk:5", "cql_n_actions:2")  # fmt: skip
+    offline = zoo.root / "chunked-offline" / "cql" / "Panda-v0_1" / "Panda-v0.zip"
+    finetune = ["--algo", "cql", "--env", "PandaForce-v0", "--conf-file", "cql_finetune.yml", "-f", "chunked-finetune",
+                "--eval-episodes", "1", "--seed", "3"]  # fmt: skip
+    output = zoo.run(*finetune, "-i", str(offline), "-n", "100", "--eval-freq", "50", "--save-freq", "50",
+                     "--hyperparams", "gradient_steps:2")  # fmt: skip
+    assert "Applying pink noise with std 0.1 (sequences of 700 steps)" in output
+    run = zoo.root / "chunked-finetune" / "cql" / "PandaForce-v0_1"
+    config = dict(yaml.unsafe_load((run / "PandaForce-v0" / "config.yml").read_text()))
+    assert (config["train_freq"], config["gradient_steps"], config["noise_type"]) == (5, 2, "pink")  # --hyperparams win
+    assert "chunked" not in config
+    check = ("from sb3_cql import CQL; m = CQL.load('{}'); m.load_replay_buffer('{}'); o = m.replay_buffer.online; "
+             "print(m.train_freq.frequency, m._n_updates, type(m.action_noise).__name__, o.size(), "
+             "o.sample(4).actions.shape[1], o.single_step_samples(4).actions.shape[1])")  # fmt: skip
+    assert zoo.python(check.format(run / "PandaForce-v0.zip", run / "rl_model_replay_buffer_100_steps.pkl")).split() == [
+        "5",
+        "60",
+        "PinkActionNoise",
+        "99",
+        "45",
+        "9",
+    ]  # fmt: skip  (20 offline steps, then 20 trainings of 2 in 100 env steps)
+    output = zoo.run(*finetune, "-i", str(run / "rl_model_50_steps.zip"), "-n", "50", "--eval-freq", "-1",
+                     "--save-replay-buffer")  # fmt: skip
+    assert f"Loading the replay buffer of the checkpoint: {run / 'rl_model_replay_buffer_50_steps.pkl'}" in output
+    resumed = zoo.root / "chunked-finetune" / "cql" / "PandaForce-v0_2"
+    assert zoo.python(check.format(resumed / "PandaForce-v0.zip", resumed / "replay_buffer.pkl")).split()[3] == "99"
+
+
 def test_evaluation_settings_come_from_the_config(zoo):
     zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "150", "-f", "config-eval", *TINY,
             "eval_freq:75", "n_eval_episodes:1")  # fmt: skip

@@ -451,3 +451,61 @@ def test_every_behaviour_in_zoo_internals_has_its_check():
     assert {internal.kind for internal in ZOO_INTERNALS} == {"method", "attribute", "option", "behaviour"}
     assert all(internal.reason for internal in ZOO_INTERNALS)
     assert len({internal.name for internal in ZOO_INTERNALS}) == len(ZOO_INTERNALS)
+
+
+FINETUNE_RUN = ["--algo", "cql", "--env", "PandaForce-v0", "--conf-file", "cql_finetune.yml", "-f", "logs", "--seed", "0"]
+
+
+def tiny_chunked_cql(path: Path) -> Path:
+    """An untrained CQL model of action chunks of 3 on Pendulum saved at ``path``."""
+    from sb3_cql import CQL
+
+    CQL("MlpPolicy", "Pendulum-v1", buffer_size=10, action_chunk=3, policy_kwargs={"net_arch": [4]}, device="cpu").save(path)
+    return path.with_suffix(".zip")
+
+
+@checks("ExperimentManager.read_hyperparameters applies --hyperparams before returning")
+def test_a_chunked_i_model_gets_the_configs_chunked_settings_below_the_command_lines(monkeypatch, tmp_path):
+    config = yaml.safe_load((plugin.hyperparams_dir() / "cql_finetune.yml").read_text())["PandaForce-v0"]
+    chunked, given = tiny_chunked_cql(tmp_path / "chunked"), ["--hyperparams", "gradient_steps:3"]
+    manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "-i", str(chunked), *given)
+    zoos, _ = ExperimentManager.read_hyperparameters.__wrapped__(manager)  # the zoo's own, before the plugin's part
+    assert zoos["gradient_steps"] == 3 and zoos[plugin.CHUNKED_KEY] == config[plugin.CHUNKED_KEY]
+    manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "-i", str(chunked), *given)
+    hyperparams, saved = manager.read_hyperparameters()
+    assert (hyperparams["train_freq"], hyperparams["gradient_steps"]) == (config["chunked"]["train_freq"], 3)
+    assert plugin.CHUNKED_KEY not in hyperparams and plugin.CHUNKED_KEY not in saved
+    assert saved["noise_type"] == "pink" and "noise_type" not in hyperparams  # the zoo knows no pink noise
+    assert manager._sb3_cql_noise == ("pink", config["chunked"]["noise_std"], 1)
+    assert (manager.eval_freq, manager.save_freq) == (config["chunked"]["eval_freq"], config["chunked"]["save_freq"])
+    # A model of one action a state keeps the entry's own settings.
+    manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "-i", str(tiny_sac(tmp_path / "sac")))
+    hyperparams, _ = manager.read_hyperparameters()
+    assert (hyperparams["train_freq"], hyperparams["noise_type"]) == (config["train_freq"], config["noise_type"])
+    assert manager.eval_freq == config["eval_freq"]
+
+
+@checks("ExperimentManager._preprocess_action_noise knows normal and ornstein-uhlenbeck only")
+def test_the_zoo_makes_normal_and_ou_noise_only_and_leaves_unknown_keys_to_the_model(monkeypatch, tmp_path):
+    manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN)
+    env = DummyVecEnv([lambda: gym.make("Pendulum-v1")])
+    with pytest.raises(RuntimeError, match="pink"):
+        ExperimentManager._preprocess_action_noise(manager, {"noise_type": "pink", "noise_std": 0.1}, {}, env)
+    made = ExperimentManager._preprocess_action_noise(
+        manager, {"noise_type": "normal", "noise_std": 0.1, "noise_hold": 5}, {}, env
+    )
+    assert made["noise_hold"] == 5  # the model would get it: the plugin takes it out first
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        (["noise_hold:0"], "noise_hold must be an integer >= 1, got 0"),
+        (["noise_type:'pink'", "noise_std:-1"], "noise_type pink needs noise_std >= 0, got -1"),
+        (["noise_type:None", "noise_hold:5"], "noise_hold holds the draws of a noise_type: give one"),
+    ],
+)
+def test_bad_noise_settings_end_the_run_on_one_line(monkeypatch, tmp_path, settings, message):
+    manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "--hyperparams", *settings)
+    with pytest.raises(SystemExit, match=f"^python -m rl_zoo3.train: error: {message}$"):
+        manager.read_hyperparameters()

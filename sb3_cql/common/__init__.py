@@ -8,15 +8,18 @@ from sb3_cql.common.buffers import (
     returns_to_go,
     with_n_step_returns,
 )
+from sb3_cql.common.noise import HeldActionNoise, pink_action_noise
 from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
 
 __all__ = [
     "ActionChunkReplayBuffer",
+    "HeldActionNoise",
     "MixedReplayBuffer",
     "OfflineSAC",
     "ReturnToGoReplayBuffer",
     "ReturnToGoSamples",
     "behaviour_cloning_loss",
+    "pink_action_noise",
     "returns_to_go",
     "with_n_step_returns",
 ]

@@ -265,7 +265,8 @@ class OfflineSAC(SAC):
         tb_log_name = tb_log_name or type(self).__name__
         if self.online_fraction is not None:
             self._prepare_online_buffer(reset_num_timesteps)
-            # Chunks run open loop from the first step: SB3's learn starts (or continues) with a new one.
+            # Chunks run open loop from the first step: SB3's learn starts (or continues) with a new one (and resets
+            # the action noise: a HeldActionNoise draws afresh with the chunk).
             self._rollout_chunks, self._rollout_episode_starts = None, np.ones(self.n_envs, dtype=bool)
             log_interval = 4 if log_interval is None else log_interval
             return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)

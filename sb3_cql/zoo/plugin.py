@@ -56,9 +56,11 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
     ZooInternal("method", "ExperimentManager.__init__", ("config", "eval_env_kwargs"),
                 "our hyperparams/ file unless --conf-file is given; whether --eval-env-kwargs was given"),
     ZooInternal("method", "ExperimentManager.read_hyperparameters", (),
-                "returns (hyperparams, saved copy): our config keys out of the first; its env_kwargs for evaluation too"),
+                "returns (hyperparams, saved copy): our config keys out of the first; its env_kwargs for evaluation too; "
+                "a chunked -i model's settings in; our noise keys out"),
     ZooInternal("method", "ExperimentManager.setup_experiment", (),
-                "a run stopped before its first model (e.g. while its dataset is collected) leaves no folder"),
+                "a run stopped before its first model (e.g. while its dataset is collected) leaves no folder; returns "
+                "(model, saved hyperparams), whose model gets our action noise"),
     ZooInternal("method", "ExperimentManager.create_envs", ("eval_env",),
                 "an -i model whose spaces do not fit the training env ends the run on one line, before SB3 loads it"),
     ZooInternal("method", "ExperimentManager.learn", ("model",),
@@ -79,6 +81,9 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
     ZooInternal("attribute", "ExperimentManager.trained_agent", ("read",), "the -i model"),
     ZooInternal("attribute", "ExperimentManager.continue_training", ("read",), "whether -i names a model to load"),
     ZooInternal("attribute", "ExperimentManager.n_timesteps", ("read",), "the step count an interrupted run names"),
+    ZooInternal("attribute", "ExperimentManager.custom_hyperparams", ("read",),
+                "the --hyperparams values, which a config's chunked entry does not override"),
+    ZooInternal("attribute", "ExperimentManager.seed", ("read",), "the run's seed, which seeds the pink noise"),
     ZooInternal("option", "--eval-freq", (ZOO_DEFAULT_EVAL_FREQ, "eval_freq"), "a config's eval_freq replaces the default"),
     ZooInternal("option", "--eval-episodes", (ZOO_DEFAULT_EVAL_EPISODES, "n_eval_episodes"),
                 "a config's n_eval_episodes replaces the default"),
@@ -108,6 +113,10 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
                 (), "a run's videos are recorded in the action mode it was trained in"),
     ZooInternal("behaviour", "ExperimentManager.save_path is <log folder>/<algo>/<env id>_<N>", (),
                 "the log folder and --exp-id of the commands printed at the end"),
+    ZooInternal("behaviour", "ExperimentManager.read_hyperparameters applies --hyperparams before returning", (),
+                "a chunked entry's settings are added after them, without overriding them"),
+    ZooInternal("behaviour", "ExperimentManager._preprocess_action_noise knows normal and ornstein-uhlenbeck only", (),
+                "noise_type pink and noise_hold are taken out of the hyperparameters before it runs"),
     ZooInternal("behaviour", "ExperimentManager.objective calls the sampler with (trial, n_actions, n_envs, additional_args)",
                 (), "sample_cql_params's signature"),
 )  # fmt: skip
@@ -115,6 +124,10 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
 #: The ``rl_zoo3.train`` options a config key replaces while the option is at its default: the key is the name of the
 #: ``ExperimentManager`` attribute the option sets (:data:`ZOO_INTERNALS` has the defaults).
 CONFIG_OPTIONS = ("--eval-freq", "--eval-episodes", "--save-freq")
+#: A config key of ours: settings that apply when the ``-i`` model acts in action chunks (``cql_finetune.yml``).
+CHUNKED_KEY = "chunked"
+#: Steps of a pink-noise sequence on an env without a time limit.
+PINK_SEQ_LEN = 1000
 
 
 def zoo_internal(name: str) -> ZooInternal:
@@ -227,15 +240,75 @@ def _run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
     ]
 
 
+def _saved_data(model_path: str) -> dict[str, Any]:
+    """The attributes saved in the SB3 model ``model_path`` (its ``data``: spaces, ``action_chunk``, ...)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(model_path, device="cpu", load_data=True)
+    return data or {}
+
+
 def _saved_spaces(model_path: str) -> tuple[Any, Any] | None:
     """The observation and action spaces saved in the SB3 model ``model_path``, if they are gymnasium spaces (SB3
     converts older ones itself when it loads the model)."""
     from gymnasium import spaces
-    from stable_baselines3.common.save_util import load_from_zip_file
 
-    data, _, _ = load_from_zip_file(model_path, device="cpu")
-    saved = ((data or {}).get("observation_space"), (data or {}).get("action_space"))
+    data = _saved_data(model_path)
+    saved = (data.get("observation_space"), data.get("action_space"))
     return saved if all(isinstance(space, spaces.Space) for space in saved) else None
+
+
+def _apply_chunked_entry(manager: Any, hyperparams: dict[str, Any], saved_hyperparams: dict[str, Any]) -> None:
+    """A config's ``chunked`` entry: settings that apply when the ``-i`` model acts in action chunks
+    (``action_chunk`` > 1), over the entry's own, below ``--hyperparams``; the key itself leaves both dicts."""
+    chunked = hyperparams.pop(CHUNKED_KEY, None)
+    saved_hyperparams.pop(CHUNKED_KEY, None)
+    if chunked is None:
+        return
+    if not isinstance(chunked, dict):
+        raise SystemExit(f"python -m rl_zoo3.train: error: {manager.config}: '{CHUNKED_KEY}' must be a mapping of "
+                         f"settings, got {chunked!r}")  # fmt: skip
+    if not manager.continue_training or _saved_data(manager.trained_agent).get("action_chunk", 1) <= 1:
+        return
+    given = manager.custom_hyperparams or {}
+    settings = {key: value for key, value in chunked.items() if key not in given}
+    hyperparams.update(settings)
+    saved_hyperparams.update(settings)
+    print(f"{manager.trained_agent} acts in action chunks: the config's '{CHUNKED_KEY}' settings apply: {settings}")
+
+
+def _action_noise(manager: Any, model: Any) -> None:
+    """Our ``noise_type: pink`` (``pink-noise-rl``'s, seeded by the run's seed) and ``noise_hold`` (each draw held
+    for that many steps: :class:`~sb3_cql.common.HeldActionNoise`) as the model's ``action_noise``."""
+    from sb3_cql.common.noise import HeldActionNoise, pink_action_noise
+
+    noise_type, noise_std, hold = getattr(manager, "_sb3_cql_noise", (None, None, 1))
+    if noise_type == "pink":
+        import gymnasium as gym
+
+        seq_len = gym.spec(manager.env_name.gym_id).max_episode_steps or PINK_SEQ_LEN
+        model.action_noise = pink_action_noise(float(noise_std), model.action_space.shape[0], seq_len, seed=manager.seed)
+        print(f"Applying pink noise with std {noise_std} (sequences of {seq_len} steps)")
+    if hold > 1 and model.action_noise is not None:
+        model.action_noise = HeldActionNoise(model.action_noise, hold)
+        print(f"Each draw of the noise is held for {hold} steps")
+
+
+def _read_noise_settings(manager: Any, hyperparams: dict[str, Any]) -> None:
+    """Take our noise keys out of ``hyperparams`` (the zoo knows ``normal`` and ``ornstein-uhlenbeck`` only, and no
+    ``noise_hold``), for :func:`_action_noise` once the model exists."""
+    hold = hyperparams.pop("noise_hold", 1)
+    if not isinstance(hold, int) or hold < 1:
+        raise SystemExit(f"python -m rl_zoo3.train: error: noise_hold must be an integer >= 1, got {hold!r}")
+    noise_type, noise_std = None, None
+    if str(hyperparams.get("noise_type", "")).strip() == "pink":
+        noise_type, noise_std = "pink", hyperparams.pop("noise_std", None)
+        del hyperparams["noise_type"]
+        if not isinstance(noise_std, (int, float)) or noise_std < 0:
+            raise SystemExit(f"python -m rl_zoo3.train: error: noise_type pink needs noise_std >= 0, got {noise_std!r}")
+    if hold > 1 and noise_type is None and hyperparams.get("noise_type") is None:
+        raise SystemExit("python -m rl_zoo3.train: error: noise_hold holds the draws of a noise_type: give one")
+    manager._sb3_cql_noise = (noise_type, noise_std, hold)
 
 
 def _misfit(saved_spaces: tuple[Any, Any] | None, env: Any) -> str | None:
@@ -306,6 +379,8 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
         hyperparams, saved_hyperparams = zoo["read_hyperparameters"](self)
+        if self.algo in ALGOS:
+            _apply_chunked_entry(self, hyperparams, saved_hyperparams)
         # Evaluation and checkpoint settings in a config: the zoo has command-line options for them only. They leave
         # the hyperparameters the model gets, not the saved ones (config.yml records them).
         for option in CONFIG_OPTIONS:
@@ -321,13 +396,18 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             if hyperparams["env_kwargs"] and getattr(self.args, "env_kwargs", None) is None:
                 # Recorded in the run's args.yml too: record_video reads env_kwargs from there only, not from config.yml.
                 self.args.env_kwargs = hyperparams["env_kwargs"]
+        if self.algo in ALGOS:
+            _read_noise_settings(self, hyperparams)
         return hyperparams, saved_hyperparams
 
     def setup_experiment(self) -> Any:
         # The zoo makes the run's folder before the model, whose dataset may first be collected: a run stopped there
         # (Ctrl-C, an error) would leave a folder without a model, and shift the next run's number.
         try:
-            return zoo["setup_experiment"](self)
+            result = zoo["setup_experiment"](self)
+            if result is not None and self.algo in ALGOS:
+                _action_noise(self, result[0])
+            return result
         except BaseException as error:
             folder = Path(self.save_path)
             if folder.is_dir() and not _holds_a_model(folder):
