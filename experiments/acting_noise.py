@@ -18,7 +18,9 @@ action mode the model was trained in, and prints its success rate:
   (:class:`sb3_cql.common.HeldActionNoise`), reset every episode.
 
 Every mode also prints how far it moves the wrist and where the fingers close: the root mean square of the wrist
-joint's (the 7th arm joint's) change over 100 steps (every 100-step window starting at a multiple of 10 steps), and of
+joint's (the 7th arm joint's) change over 100 steps (every 100-step window starting at a multiple of 10 steps), the
+same of the noise's own push on the wrist's target (what the noise, or the sample, adds to the action, times the
+target's change per unit of action: ``arm_max_delta`` in delta actions, summed over the window), and of
 the episodes whose fingers close on a cylinder lying on its side, how many close within 20 degrees of across its axis
 at least once (:func:`envs.pd_controller.closing_angles` of 70 degrees or more: the hand turned to the fallen cylinder).
 
@@ -28,7 +30,8 @@ actions, and the fraction of steps whose sampled finger command has the other si
 delta mode the data's gripper commands are +1 open, -1 close: a flipped sign opens a closed gripper). Output::
 
     mean: success 0.250 (5/20)
-      wrist's 100-step change 2.9 deg (RMS); closings on a lying cylinder in 9 episodes, 3 within 20 deg of across it
+      wrist's 100-step change 14.7 deg (RMS), the noise's push on its target 0.0 deg; closings on a lying cylinder
+      in 9 episodes, 3 within 20 deg of across it
     sample: success 0.000 (0/20)
       wrist's ...
       std before tanh [...]
@@ -90,12 +93,28 @@ def make_noise(mode: str, n_actions: int, hold: int = 1, seq_len: int = 700, see
     return HeldActionNoise(noise, hold) if kind == "held" else noise
 
 
+def window_sums(increments: np.ndarray) -> np.ndarray:
+    """The sums of an episode's per-step ``increments`` over every :data:`WINDOW`-step window that starts at a
+    multiple of :data:`WINDOW_STRIDE`."""
+    totals = np.concatenate([[0.0], np.cumsum(increments)])
+    starts = np.arange(0, len(totals) - 1 - WINDOW, WINDOW_STRIDE)
+    return totals[starts + WINDOW] - totals[starts]
+
+
 def wrist_changes(observations: np.ndarray) -> np.ndarray:
-    """The wrist joint's change (rad) over every :data:`WINDOW`-step window of an episode's observations that starts
-    at a multiple of :data:`WINDOW_STRIDE`."""
+    """The wrist joint's change (rad) over every :data:`WINDOW`-step window of an episode's observations
+    (:func:`window_sums` of its step-to-step changes)."""
     wrist = np.asarray(observations)[:, envs.OBSERVATION_SLICES["joint_positions"]][:, WRIST]
-    starts = np.arange(0, len(wrist) - WINDOW, WINDOW_STRIDE)
-    return wrist[starts + WINDOW] - wrist[starts]
+    return window_sums(np.diff(wrist))
+
+
+def target_scale(env: gym.Env) -> float:
+    """How far (rad) an action of 1 on the wrist moves its target: ``arm_max_delta`` in delta actions, half the
+    joint's range in absolute ones (where the action is the target)."""
+    robot = env.unwrapped.robot
+    if robot.action_mode == "delta":
+        return float(robot.max_delta[WRIST])
+    return float((env.action_space.high[WRIST] - env.action_space.low[WRIST]) / 2)
 
 
 def play(
@@ -105,13 +124,13 @@ def play(
     angles on a lying cylinder; for ``sample``, the per-dimension statistics too. ``open_loop``: a chunked model runs
     each chunk open loop (through ``predict``'s state)."""
     env = gym.make(env_id, **env_kwargs)
-    hold, seq_len = getattr(model, "action_chunk", 1), env.spec.max_episode_steps or 1000
-    successes, stds, gaps, flips, changes, lying = [], [], [], [], [], []
+    hold, seq_len, scale = getattr(model, "action_chunk", 1), env.spec.max_episode_steps or 1000, target_scale(env)
+    successes, stds, gaps, flips, changes, pushes, lying = [], [], [], [], [], [], []
     try:
         for seed in seeds:
             observation, info = env.reset(seed=int(seed))
             noise = make_noise(mode, env.action_space.shape[0], hold, seq_len, int(seed))
-            observations, state, done = [observation], None, False
+            observations, pushed, state, done = [observation], [], None, False
             while not done:
                 if open_loop:
                     action, state = model.predict(
@@ -127,17 +146,24 @@ def play(
                     stds.append(log_std.exp().numpy()[0])
                     gaps.append(np.abs(action - deterministic))
                     flips.append(np.sign(action[-2:]) != np.sign(deterministic[-2:]))
+                    pushed.append((action[WRIST] - deterministic[WRIST]) * scale)
                 elif noise is not None:
-                    action = np.clip(action + noise(), -1.0, 1.0)
+                    noisy = np.clip(action + noise(), -1.0, 1.0)
+                    pushed.append((noisy[WRIST] - np.clip(action[WRIST], -1.0, 1.0)) * scale)
+                    action = noisy
+                else:
+                    pushed.append(0.0)
                 observation, _, terminated, truncated, info = env.step(action)
                 observations.append(observation)
                 done = terminated or truncated
             successes.append(bool(info.get("is_success", False)))
             changes.append(wrist_changes(np.array(observations)))
+            pushes.append(window_sums(np.array(pushed)))
             lying.append([angle for angle in closing_angles(np.array(observations)) if angle is not None])
     finally:
         env.close()
-    result: dict[str, Any] = {"successes": successes, "wrist_changes": np.concatenate(changes), "lying_closings": lying}
+    result: dict[str, Any] = {"successes": successes, "wrist_changes": np.concatenate(changes),
+                              "wrist_pushes": np.concatenate(pushes), "lying_closings": lying}  # fmt: skip
     if mode == "sample":
         result.update(std=np.mean(stds, axis=0), gap=np.mean(gaps, axis=0), flips=np.mean(flips, axis=0))
     return result
@@ -145,12 +171,15 @@ def play(
 
 def exploration_line(result: dict[str, Any]) -> str:
     """How far the wrist moved and how the fingers closed, from :func:`play`'s ``result``."""
-    changes = result["wrist_changes"]
-    rms = float(np.degrees(np.sqrt(np.mean(changes**2)))) if len(changes) else float("nan")
+    change, push = (_rms_degrees(result[key]) for key in ("wrist_changes", "wrist_pushes"))
     closing = [angles for angles in result["lying_closings"] if angles]
     turned = sum(max(angles) >= TURNED for angles in closing)
-    return (f"  wrist's {WINDOW}-step change {rms:.1f} deg (RMS); closings on a lying cylinder in {len(closing)} "
-            f"episodes, {turned} within 20 deg of across it")  # fmt: skip
+    return (f"  wrist's {WINDOW}-step change {change:.1f} deg (RMS), the noise's push on its target {push:.1f} deg; "
+            f"closings on a lying cylinder in {len(closing)} episodes, {turned} within 20 deg of across it")  # fmt: skip
+
+
+def _rms_degrees(values: np.ndarray) -> float:
+    return float(np.degrees(np.sqrt(np.mean(values**2)))) if len(values) else float("nan")
 
 
 def parse_mode(text: str) -> str:

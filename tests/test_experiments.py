@@ -126,7 +126,7 @@ def succeeded(runs, name: str) -> list[str]:
 def test_acting_noise_prints_success_per_mode_and_the_samples_statistics(runs):
     lines = succeeded(runs, "acting_noise")
     per_dimension = rf"\[{FLOAT}(?: {FLOAT}){{{ACTION_DIM - 1}}}\]"
-    exploration = (rf"  wrist's 100-step change {FLOAT} deg \(RMS\); "
+    exploration = (rf"  wrist's 100-step change {FLOAT} deg \(RMS\), the noise's push on its target {FLOAT} deg; "
                    r"closings on a lying cylinder in [01] episodes, [01] within 20 deg of across it")  # fmt: skip
     expected = [
         r"mean: success [01]\.000 \([01]/1\)",
@@ -168,11 +168,11 @@ def test_acting_noise_measures_the_wrists_100_step_change_from_the_joint_positio
     observations[:, envs.OBSERVATION_SLICES["joint_positions"].start + script.WRIST] = 0.01 * np.arange(250)
     changes = script.wrist_changes(observations)
     assert len(changes) == 15 and np.allclose(changes, 1.0)  # windows from steps 0, 10, ..., 140; 0.01 rad a step
-    line = script.exploration_line({"wrist_changes": np.radians([3.0, -3.0]), "lying_closings": [[10.0, 75.0], [], [40.0]]})
-    assert (
-        line
-        == "  wrist's 100-step change 3.0 deg (RMS); closings on a lying cylinder in 2 episodes, 1 within 20 deg of across it"
-    )
+    assert np.allclose(script.window_sums(np.full(249, 0.01)), 1.0)  # the same from the step-to-step changes
+    line = script.exploration_line({"wrist_changes": np.radians([3.0, -3.0]), "wrist_pushes": np.radians([0.0, 2.0]),
+                                    "lying_closings": [[10.0, 75.0], [], [40.0]]})  # fmt: skip
+    assert line == ("  wrist's 100-step change 3.0 deg (RMS), the noise's push on its target 1.4 deg; "
+                    "closings on a lying cylinder in 2 episodes, 1 within 20 deg of across it")  # fmt: skip
 
 
 def test_action_drift_prints_gradients_and_shifts(runs, inputs):
