@@ -97,7 +97,7 @@ def window_sums(increments: np.ndarray) -> np.ndarray:
     """The sums of an episode's per-step ``increments`` over every :data:`WINDOW`-step window that starts at a
     multiple of :data:`WINDOW_STRIDE`."""
     totals = np.concatenate([[0.0], np.cumsum(increments)])
-    starts = np.arange(0, len(totals) - 1 - WINDOW, WINDOW_STRIDE)
+    starts = np.arange(0, len(totals) - WINDOW, WINDOW_STRIDE)
     return totals[starts + WINDOW] - totals[starts]
 
 

@@ -164,11 +164,11 @@ def test_acting_noise_modes_give_sb3_action_noise():
 
 def test_acting_noise_measures_the_wrists_100_step_change_from_the_joint_positions():
     script = load_script("acting_noise")
-    observations = np.zeros((250, 29))
-    observations[:, envs.OBSERVATION_SLICES["joint_positions"].start + script.WRIST] = 0.01 * np.arange(250)
+    observations = np.zeros((251, 29))
+    observations[:, envs.OBSERVATION_SLICES["joint_positions"].start + script.WRIST] = 0.01 * np.arange(251)
     changes = script.wrist_changes(observations)
-    assert len(changes) == 15 and np.allclose(changes, 1.0)  # windows from steps 0, 10, ..., 140; 0.01 rad a step
-    assert np.allclose(script.window_sums(np.full(249, 0.01)), 1.0)  # the same from the step-to-step changes
+    assert len(changes) == 16 and np.allclose(changes, 1.0)  # windows from steps 0, 10, ..., 150; 0.01 rad a step
+    assert np.allclose(script.window_sums(np.full(250, 0.01)), changes)  # the same from the step-to-step changes
     line = script.exploration_line({"wrist_changes": np.radians([3.0, -3.0]), "wrist_pushes": np.radians([0.0, 2.0]),
                                     "lying_closings": [[10.0, 75.0], [], [40.0]]})  # fmt: skip
     assert line == ("  wrist's 100-step change 3.0 deg (RMS), the noise's push on its target 1.4 deg; "
