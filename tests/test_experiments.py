@@ -343,13 +343,33 @@ def test_a_reopening_counts_only_gripper_commands_held_for_20_steps():
     assert len(held(np.ones(19))) == 0
 
 
+def test_finetune_record_reads_a_zoo_fine_tuning_folder(inputs, tmp_path, capsys):
+    """A zoo run folder made of the fixture's fine-tuning (one 700-step episode online) and a hand-written
+    evaluation and monitor file."""
+    run = tmp_path / "PandaForce-v0_1"
+    run.mkdir()
+    (run / f"rl_model_replay_buffer_{FINETUNED_STEPS}_steps.pkl").write_bytes((inputs / "finetuned_buffer.pkl").read_bytes())
+    np.savez(run / "evaluations.npz", timesteps=np.array([350, 700]), successes=np.array([[1, 0], [1, 1]]))
+    (run / "0.monitor.csv").write_text('#{"t_start": 0}\nr,l,t,is_success\n0.0,700,1.0,False\n1.0,300,2.0,True\n')
+    load_script("finetune_record").main([str(run), "--output", str(tmp_path / "curves.png"), "--block", "500"])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[:2] == [f"{tmp_path / 'curves.png'}: evaluations of 1 runs",
+                         f"{run}: evaluations at 350, 700 env steps: 0.50 1.00"]  # fmt: skip
+    assert re.fullmatch(
+        r"  0-500 env steps: 0 of 0 online episodes succeeded; closings on a lying cylinder in 0, 0 .*", lines[2]
+    )
+    closings = r"closings on a lying cylinder in [01], [01] within 20 deg of across it"
+    assert re.fullmatch(rf"  500-1,000 env steps: 1 of 2 online episodes succeeded; {closings}", lines[3])
+    assert len(lines) == 4 and (tmp_path / "curves.png").stat().st_size > 0
+
+
 def test_values_vs_returns_says_in_one_line_that_a_model_is_missing(tmp_path):
     with pytest.raises(SystemExit) as exit_:
         load_script("values_vs_returns").main([str(tmp_path / "missing.zip"), str(tmp_path / "missing.pkl")])
     assert str(exit_.value.code).startswith("error: ") and "\n" not in str(exit_.value.code)
 
 
-@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure"])
+@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure", "finetune_record"])
 def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(["--help"])
@@ -374,6 +394,7 @@ def test_help_shows_the_usage(name, capsys):
         ("values_vs_returns", ["model.zip"], "the following arguments are required: buffer"),
         ("closing_values", ["model.zip", "--episodes", "0"], "argument --episodes: must be a positive integer, got 0"),
         ("alignment_figure", ["record.json"], "the following arguments are required: --output"),
+        ("finetune_record", ["run", "--output", "f.png", "--block", "0"], "argument --block: must be a positive integer"),
         ("values_vs_returns", ["model.zip", "buffer.pkl", "--offline-states", "0"], "must be a positive integer"),
     ],
 )
