@@ -3,7 +3,8 @@ successful and failed episodes.
 
 Usage: python experiments/values_vs_returns.py MODEL.zip BUFFER.pkl [--offline-states N] [--seed S] [--threads N]
 
-``MODEL.zip`` is a :class:`sb3_cql.CQL` model fine-tuned online and ``BUFFER.pkl`` the online transitions saved with
+``MODEL.zip`` is a :class:`sb3_cql.CQL` model fine-tuned online (one action a state, or in action chunks: then
+``a`` is the stored chunk from each state) and ``BUFFER.pkl`` the online transitions saved with
 it (``save_replay_buffer``, or a fine-tuning checkpoint's ``rl_model_replay_buffer_<N>_steps.pkl``); its offline data
 come back from the model's dataset id (collected first if missing, as the model does). Every state of an ended
 online episode and ``--offline-states`` (5000) states drawn from the offline data (``--seed``, 0) are scored with the
@@ -43,7 +44,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 
 import envs  # noqa: F401  (registers the tasks)
 from sb3_cql import CQL
-from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql.common import ActionChunkReplayBuffer, MixedReplayBuffer, ReturnToGoReplayBuffer
 from sb3_cql.data import DatasetError
 
 HEADER = (f"{'group':20s} {'states':>6s} {'RTG':>7s} {'Q(s,a)':>7s} {'Q(s,pi)':>7s} {'Q(s,pi)<RTG':>11s} "
@@ -91,10 +92,23 @@ def held(commands: np.ndarray, steps: int = HELD_STEPS) -> np.ndarray:
     return np.concatenate(kept) if kept else commands[:0]
 
 
+def stored_actions(model: CQL, buffer: ReturnToGoReplayBuffer, rows: np.ndarray) -> np.ndarray:
+    """The stored actions the critics score at ``rows``: each step's, or for a model of action chunks the chunk from
+    each step, cut at its episode's end as the model's chunk buffer samples it
+    (:meth:`~sb3_cql.common.ActionChunkReplayBuffer.chunk_actions`)."""
+    chunk = getattr(model, "action_chunk", 1)
+    if chunk == 1:
+        return buffer.actions[rows, 0]
+    if buffer.n_steps != chunk:
+        raise ValueError(f"the buffer reads {buffer.n_steps}-step samples, the model acts in chunks of {chunk}")
+    return ActionChunkReplayBuffer.chunk_actions(buffer, rows)  # the chunk buffer's arrays, with its n_steps
+
+
 def values(model: CQL, buffer: ReturnToGoReplayBuffer, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(returns-to-go, Q(s,a), Q(s,pi))`` of the buffer's ``rows`` (env 0), the twin critics' minimum."""
+    """``(returns-to-go, Q(s,a), Q(s,pi))`` of the buffer's ``rows`` (env 0), the twin critics' minimum (``a``: the
+    stored action, or chunk: :func:`stored_actions`)."""
     observations = th.as_tensor(buffer.observations[rows, 0], device=model.device)
-    actions = th.as_tensor(buffer.actions[rows, 0], device=model.device)
+    actions = th.as_tensor(stored_actions(model, buffer, rows), device=model.device)
     with th.no_grad():
         q_data = th.min(th.cat(model.critic(observations, actions), dim=1), dim=1).values
         policy_actions = model.actor(observations, deterministic=True)

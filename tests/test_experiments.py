@@ -332,6 +332,22 @@ def test_values_vs_returns_bins_a_successful_episodes_states_by_steps_before_its
     np.testing.assert_allclose(rtg, expected, atol=0.06)
 
 
+def test_values_vs_returns_scores_a_chunked_model_at_the_stored_chunks(inputs, monkeypatch):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+    script = load_script("values_vs_returns")
+    model = CQL.load(inputs / "chunked.zip")
+    model._ensure_offline_data()
+    chunks = model.replay_buffer
+    offline = script.with_returns_to_go(model, chunks)
+    rows = np.arange(0, chunks.size(), 7)
+    np.testing.assert_array_equal(script.stored_actions(model, offline, rows), chunks.chunk_actions(rows))
+    _, q_data, _ = script.values(model, offline, rows)
+    observations = th.as_tensor(chunks.observations[rows, 0])
+    with th.no_grad():
+        expected = th.min(*model.critic(observations, th.as_tensor(chunks.chunk_actions(rows)))).numpy().ravel()
+    np.testing.assert_allclose(q_data, expected, rtol=1e-6)
+
+
 def test_a_reopening_counts_only_gripper_commands_held_for_20_steps():
     held = load_script("values_vs_returns").held
     reopens = load_script("gripper_reopenings").reopens
