@@ -8,7 +8,8 @@ evaluations during training), ``0.monitor.csv`` (each online episode's length an
 replay buffer with the most steps (``rl_model_replay_buffer_<N>_steps.pkl``: the online transitions). Printed, a run
 at a time: the evaluations' success rates; then for each ``--block`` of env steps, the online episodes that ended in
 it and their successes, and of those whose fingers closed on a cylinder lying on its side, how many closed within 20
-degrees of across its axis at least once (:func:`envs.pd_controller.closing_angles` of 70 degrees or more). The
+degrees of across its axis at least once (:func:`envs.pd_controller.closing_angles` of 70 degrees or more; for
+the episodes that ended by the checkpoint, and only for the blocks its buffer reaches). The
 figure draws the evaluations of every run and their mean with a Student-t 95% interval (one run: its curve).
 """
 
@@ -45,9 +46,9 @@ def latest_buffer(run: Path) -> Path | None:
     return max(found)[1] if found else None
 
 
-def online_closings(buffer_path: Path) -> list[tuple[int, list[float]]]:
-    """``(env steps at its end, closing angles on a lying cylinder)`` of each ended online episode in a fine-tuning
-    checkpoint's buffer, in order."""
+def online_closings(buffer_path: Path) -> tuple[int, list[tuple[int, list[float]]]]:
+    """The transitions in a fine-tuning checkpoint's buffer and, for each ended online episode in it, in order,
+    ``(env steps at its end, closing angles on a lying cylinder)``."""
     buffer = load_from_pkl(buffer_path)
     online = buffer.online if isinstance(buffer, MixedReplayBuffer) else buffer
     size = online.size()
@@ -57,7 +58,7 @@ def online_closings(buffer_path: Path) -> list[tuple[int, list[float]]]:
         observations = np.concatenate([online.observations[start : end + 1, 0], online.next_observations[end : end + 1, 0]])
         episodes.append((int(end) + 1, [angle for angle in closing_angles(observations) if angle is not None]))
         start = end + 1
-    return episodes
+    return size, episodes
 
 
 def read_run(run: Path) -> dict[str, Any]:
@@ -69,12 +70,13 @@ def read_run(run: Path) -> dict[str, Any]:
     except (OSError, ValueError) as error:
         sys.exit(f"error: {run}: {error}")
     buffer = latest_buffer(run)
+    covered, closings = (0, []) if buffer is None else online_closings(buffer)
     return {
         "steps": evaluations["timesteps"],
         "success": evaluations["successes"].mean(axis=1),
         "episodes": list(zip(monitor["l"].cumsum().tolist(), monitor["is_success"].astype(bool).tolist(), strict=True)),
-        "closings": [] if buffer is None else online_closings(buffer),
-        "buffer": buffer,
+        "closings": closings,
+        "covered": covered,
     }
 
 
@@ -88,7 +90,7 @@ def block_lines(record: dict[str, Any], block: int) -> list[str]:
         closed = [angles for end, angles in record["closings"] if low < end <= high and angles]
         turned = sum(max(angles) >= TURNED for angles in closed)
         line = f"  {low:,}-{high:,} env steps: {sum(ended)} of {len(ended)} online episodes succeeded"
-        if record["buffer"] is not None:
+        if low < record["covered"]:  # the checkpoint's buffer holds (some of) the block
             line += f"; closings on a lying cylinder in {len(closed)}, {turned} within 20 deg of across it"
         lines.append(line)
     return lines
