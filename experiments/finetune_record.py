@@ -9,7 +9,8 @@ replay buffer with the most steps (``rl_model_replay_buffer_<N>_steps.pkl``: the
 at a time: the evaluations' success rates; then for each ``--block`` of env steps, the online episodes that ended in
 it and their successes, and of those whose fingers closed on a cylinder lying on its side, how many closed within 20
 degrees of across its axis at least once (:func:`envs.pd_controller.closing_angles` of 70 degrees or more; for
-the episodes that ended by the checkpoint, and only for the blocks its buffer reaches). The
+the episodes that ended by the checkpoint, and only for the blocks its buffer reaches), and how many of those
+succeeded. The
 figure draws the evaluations of every run and their mean with a Student-t 95% interval (one run: its curve).
 """
 
@@ -46,9 +47,10 @@ def latest_buffer(run: Path) -> Path | None:
     return max(found)[1] if found else None
 
 
-def online_closings(buffer_path: Path) -> tuple[int, list[tuple[int, list[float]]]]:
+def online_closings(buffer_path: Path) -> tuple[int, list[tuple[int, list[float], bool]]]:
     """The transitions in a fine-tuning checkpoint's buffer and, for each ended online episode in it, in order,
-    ``(env steps at its end, closing angles on a lying cylinder)``."""
+    ``(env steps at its end, closing angles on a lying cylinder, whether it succeeded)`` (a success ends the episode:
+    a termination, not the time limit)."""
     buffer = load_from_pkl(buffer_path)
     online = buffer.online if isinstance(buffer, MixedReplayBuffer) else buffer
     size = online.size()
@@ -56,7 +58,8 @@ def online_closings(buffer_path: Path) -> tuple[int, list[tuple[int, list[float]
     episodes, start = [], 0
     for end in ends:
         observations = np.concatenate([online.observations[start : end + 1, 0], online.next_observations[end : end + 1, 0]])
-        episodes.append((int(end) + 1, [angle for angle in closing_angles(observations) if angle is not None]))
+        angles = [angle for angle in closing_angles(observations) if angle is not None]
+        episodes.append((int(end) + 1, angles, not online.timeouts[end, 0]))
         start = end + 1
     return size, episodes
 
@@ -87,11 +90,12 @@ def block_lines(record: dict[str, Any], block: int) -> list[str]:
     for low in range(0, last, block):
         high = low + block
         ended = [success for end, success in record["episodes"] if low < end <= high]
-        closed = [angles for end, angles in record["closings"] if low < end <= high and angles]
-        turned = sum(max(angles) >= TURNED for angles in closed)
+        closed = [(angles, success) for end, angles, success in record["closings"] if low < end <= high and angles]
+        turned = [success for angles, success in closed if max(angles) >= TURNED]
         line = f"  {low:,}-{high:,} env steps: {sum(ended)} of {len(ended)} online episodes succeeded"
         if low < record["covered"]:  # the checkpoint's buffer holds (some of) the block
-            line += f"; closings on a lying cylinder in {len(closed)}, {turned} within 20 deg of across it"
+            line += (f"; closings on a lying cylinder in {len(closed)}, {len(turned)} within 20 deg of across it "
+                     f"({sum(turned)} of them succeeded)")  # fmt: skip
         lines.append(line)
     return lines
 
