@@ -1,7 +1,7 @@
 """What fine-tuning runs did, from their zoo folders: evaluations against env steps (a figure, mean and 95% CI over the
 runs), and per block of env steps the online episodes' successes and how their fingers closed on a fallen cylinder.
 
-Usage: python experiments/finetune_record.py RUN [RUN ...] --output FIGURE.png [--block 20000]
+Usage: python experiments/finetune_record.py RUN [RUN ...] --output FIGURE.png [--block 20000] [--labels NAME ...]
 
 Each RUN is a zoo run folder of a fine-tuning (``logs/cql/PandaForce-v0_1``): its ``evaluations.npz`` (the zoo's
 evaluations during training), ``0.monitor.csv`` (each online episode's length and success) and the checkpoint's
@@ -11,7 +11,8 @@ it and their successes, and of those whose fingers closed on a cylinder lying on
 degrees of across its axis at least once (:func:`envs.pd_controller.closing_angles` of 70 degrees or more; for
 the episodes that ended by the checkpoint, and only for the blocks its buffer reaches), and how many of those
 succeeded. The
-figure draws the evaluations of every run and their mean with a Student-t 95% interval (one run: its curve).
+figure draws the evaluations of every run (labelled by ``--labels``, else by its folder) and their mean, with a
+Student-t 95% interval from three runs on.
 """
 
 from __future__ import annotations
@@ -110,8 +111,8 @@ def figure(records: dict[str, dict[str, Any]], path: Path) -> None:
     curves = np.array([record["success"][:common] for record in records.values()])
     mean, half = mean_ci95(curves)
     axis.plot(steps, mean, color="black", lw=2, label=f"mean of {len(records)}")
-    if len(records) > 1:
-        axis.fill_between(steps, mean - half, mean + half, color="black", alpha=0.15)
+    if len(records) >= 3:  # with two, Student's t makes the interval wider than the axis
+        axis.fill_between(steps, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1), color="black", alpha=0.15)
     axis.set(xlabel="env steps", ylabel="evaluation success rate", ylim=(-0.02, 1.02))
     axis.legend(fontsize=7)
     fig.tight_layout()
@@ -128,8 +129,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("runs", nargs="+", type=Path, help="zoo run folders of fine-tunings")
     parser.add_argument("--output", type=Path, required=True, help="the figure (.png)")
     parser.add_argument("--block", type=positive_int, default=20_000, help="env steps per block of online episodes")
+    parser.add_argument("--labels", nargs="+", help="the runs' names in the figure and the output (one a run)")
     args = parser.parse_args(argv)
-    records = {str(run): read_run(run) for run in args.runs}
+    if args.labels is not None and len(args.labels) != len(args.runs):
+        parser.error(f"--labels: {len(args.labels)} names for {len(args.runs)} runs")
+    records = {name: read_run(run) for name, run in zip(args.labels or map(str, args.runs), args.runs, strict=True)}
     figure(records, args.output)
     print(f"{args.output}: evaluations of {len(records)} runs")
     for name, record in records.items():

@@ -410,6 +410,7 @@ def test_help_shows_the_usage(name, capsys):
         ("closing_values", ["model.zip", "--episodes", "0"], "argument --episodes: must be a positive integer, got 0"),
         ("alignment_figure", ["record.json"], "the following arguments are required: --output"),
         ("finetune_record", ["run", "--output", "f.png", "--block", "0"], "argument --block: must be a positive integer"),
+        ("finetune_record", ["a", "b", "--output", "f.png", "--labels", "x"], "--labels: 1 names for 2 runs"),
         ("values_vs_returns", ["model.zip", "buffer.pkl", "--offline-states", "0"], "must be a positive integer"),
     ],
 )

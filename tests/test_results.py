@@ -20,13 +20,27 @@ def test_the_committed_models_fit_in_the_repository():
     assert FINETUNED and sum(path.stat().st_size for path in FINETUNED) <= MAX_BYTES
 
 
+def record_of(path: Path) -> tuple[str, dict]:
+    """The task and record of a committed model: ``finetune-<task>-seed<N>.zip`` is the protocol's fine-tuning stage
+    (its record in ``results/finetune-<task>/records``), ``finetune-chunked-<task>-seed<N>.zip`` a chunked zoo
+    fine-tuning (its record in ``results/finetune-chunked/runs/seed<N>``)."""
+    name, seed = path.stem.rsplit("-", 1)
+    task = name.removeprefix("finetune-")
+    if task.startswith("chunked-"):
+        task = task.removeprefix("chunked-")
+        return task, json.loads((RESULTS / "finetune-chunked" / "runs" / seed / "record.json").read_text())
+    return task, json.loads(
+        (RESULTS / f"finetune-{task}" / "records" / "train" / f"cql-finetune-{task}-{seed}.json").read_text()
+    )
+
+
 @pytest.mark.parametrize("path", FINETUNED, ids=lambda path: path.stem)
 def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
-    name, seed = path.stem.rsplit("-", 1)  # finetune-<task>-seed<N>
-    task = name.removeprefix("finetune-")
-    record = json.loads((RESULTS / f"finetune-{task}" / "records" / "train" / f"cql-finetune-{task}-{seed}.json").read_text())
+    task, record = record_of(path)
     model = CQL.load(path)
-    assert model.num_timesteps == record["training_steps"] and model.cql_calibrated
+    assert model.num_timesteps == record["training_steps"]
+    assert model.action_chunk == record.get("action_chunk", 1)
+    assert model.cql_calibrated == (model.action_chunk == 1)  # the protocol's fine-tuning was calibrated; chunks cannot be
     env = gym.make(task, **record["env_kwargs"])
     observation, _ = env.reset(seed=0)
     action, _ = model.predict(observation, deterministic=True)
