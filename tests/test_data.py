@@ -30,6 +30,7 @@ from sb3_cql.data import (
 )
 from sb3_cql.data import collection as collection_module
 from sb3_cql.data.__main__ import main as data_cli
+from sb3_cql.data.partial import DatasetFiles
 
 
 @pytest.fixture(autouse=True)
@@ -202,15 +203,22 @@ def test_ctrl_c_that_python_drops_in_a_destructor_still_stops_the_collection(mon
     assert last_line == "interrupted: 2 of 4 episodes of sb3cql/Panda-v0/random-v0 kept; the same command resumes"
 
 
-def test_another_collection_does_not_resume_a_partial_one(monkeypatch):
+def test_a_partial_collection_of_another_spec_is_kept_and_the_new_one_refused_until_overwrite(monkeypatch):
     run_episode = interrupt_collection_at(monkeypatch, 1, [])
     with pytest.raises(KeyboardInterrupt):
         collect_dataset(CollectionSpec(policy="random", n_episodes=2, seed=1), progress_bar=False)
     monkeypatch.setattr(collection_module, "_run_episode", run_episode)
-    dataset = collect_dataset(CollectionSpec(policy="random", n_episodes=1, seed=2), progress_bar=False)
+    partial = DatasetFiles("sb3cql/Panda-v0/random-v0")
+    command = "python -m sb3_cql.data collect --env Panda-v0 --policy random --episodes 2 --seed 1"
+    with pytest.raises(DatasetError, match=rf"is in {re.escape(str(partial.partial))}: 1 of 2 episodes of another "
+                                           rf"collection .*resume it with: {command} .*, or pass --overwrite"):  # fmt: skip
+        collect_dataset(CollectionSpec(policy="random", n_episodes=1, seed=2), progress_bar=False)
+    assert partial.episodes_held() == 1  # kept
+    dataset = collect_dataset(CollectionSpec(policy="random", n_episodes=1, seed=2), overwrite=True, progress_bar=False)
     assert dataset.total_episodes == 1
     assert dataset.storage.metadata["collection"] == CollectionSpec(policy="random", n_episodes=1, seed=2).to_json()
     np.testing.assert_array_equal(dataset[0].observations[0], gym.make("Panda-v0").reset(seed=2)[0])
+    assert not partial.partial.exists()
 
 
 def test_mix_combines_datasets():
@@ -388,14 +396,9 @@ def run_data_cli(args: list[str], minari_root, **kwargs) -> subprocess.Popen:
 def test_ctrl_c_stops_the_command_line_collection_and_the_same_command_resumes(minari_root):
     args = ["collect", "--policy", "pid", "--episodes", "30", "--workers", "2", "--write-every", "2"]
     process = run_data_cli(args, minari_root, start_new_session=True)
-    partial_metadata = minari_root / "sb3cql" / "Panda-v0" / ".pid-v0.partial" / "data" / "metadata.json"
+    partial = DatasetFiles("sb3cql/Panda-v0/pid-v0")
     try:
-        while process.poll() is None:  # until the first 2 episodes are on disk
-            try:
-                if json.loads(partial_metadata.read_text())["total_episodes"] >= 2:
-                    break
-            except (OSError, ValueError):  # not there yet, or being written
-                pass
+        while process.poll() is None and partial.episodes_held() < 2:  # until the first 2 episodes are on disk
             time.sleep(0.05)
         assert process.poll() is None, "the collection ended before it could be interrupted"
         os.killpg(process.pid, signal.SIGINT)  # Ctrl-C: to the command and its workers
@@ -413,7 +416,7 @@ def test_ctrl_c_stops_the_command_line_collection_and_the_same_command_resumes(m
             r"interrupted: (\d+) of 30 episodes of sb3cql/Panda-v0/pid-v0 kept; the same command resumes", interrupted
         )[1]
     )
-    assert 2 <= kept < 30 and json.loads(partial_metadata.read_text())["total_episodes"] == kept
+    assert 2 <= kept < 30 and partial.episodes_held() == kept
     assert not dataset_path("sb3cql/Panda-v0/pid-v0").exists()
 
     rerun = run_data_cli(args, minari_root)

@@ -43,8 +43,10 @@ from tqdm import tqdm
 import envs
 from envs.pd_controller import REFERENCE_CONTROLLERS
 from sb3_cql.data import ids
-from sb3_cql.data.ids import DEFAULT_NOISE, NOISY_POLICIES, POLICIES, SPEC_FILE
-from sb3_cql.data.replay import load_dataset
+from sb3_cql.data.ids import DEFAULT_NOISE, NOISY_POLICIES, POLICIES
+from sb3_cql.data.partial import DatasetFiles, crash_point, partial_summary
+from sb3_cql.data.replay import DatasetError, damaged_dataset, load_dataset
+from sb3_cql.interrupts import die_with_parent
 
 #: Episodes written to disk at a time: the most a crash (a killed process, a power cut) can lose. Ctrl-C loses none
 #: of the finished ones: they are written before the collection stops.
@@ -221,13 +223,16 @@ def _init_worker(spec: CollectionSpec) -> None:
     _worker.update(spec=spec, env=env, policy=make_policy(spec, env))
 
 
-def _init_pool_worker(spec: CollectionSpec) -> None:
-    """Set up a worker process. Ctrl-C reaches every process of the terminal's group: a worker ignores it (no
-    traceback from it), and the parent stops the collection. The worker started with SIGINT blocked
-    (:func:`_sigint_blocked`), so one sent before this point is dropped too."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _init_pool_worker(spec: CollectionSpec, parent: int) -> None:
+    """Set up a worker process. Ctrl-C reaches every process of the terminal's group, SIGTERM may too: a worker
+    ignores both (no traceback from them), and the parent stops the collection and its workers. The worker started
+    with them blocked (:func:`_interrupts_blocked`), so one sent before this point is dropped too. It dies with the
+    parent (:func:`~sb3_cql.interrupts.die_with_parent`): a killed collection leaves no worker behind."""
+    die_with_parent(parent)
+    for signum in INTERRUPTS:
+        signal.signal(signum, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, set(INTERRUPTS))
     _init_worker(spec)
 
 
@@ -266,9 +271,8 @@ def _run_episode(index: int) -> EpisodeBuffer:
     )
 
 
-def _episodes(spec: CollectionSpec, start: int, workers: int) -> Iterator[EpisodeBuffer]:
-    """Episodes ``start .. n_episodes - 1`` in order, from ``workers`` processes (in this one if 1)."""
-    indices = range(start, spec.n_episodes)
+def _episodes(spec: CollectionSpec, indices: list[int], workers: int) -> Iterator[EpisodeBuffer]:
+    """The episodes ``indices`` in order, from ``workers`` processes (in this one if 1)."""
     if workers == 1:
         _init_worker(spec)
         try:
@@ -279,12 +283,12 @@ def _episodes(spec: CollectionSpec, start: int, workers: int) -> Iterator[Episod
         return
     # spawn, not fork: a parent holding torch threads or a PyBullet client must not be copied. An executor, not
     # a Pool: a killed worker raises BrokenProcessPool instead of hanging the collection.
-    executor = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), _init_pool_worker, (spec,))
+    executor = ProcessPoolExecutor(workers, multiprocessing.get_context("spawn"), _init_pool_worker, (spec, os.getpid()))
     finished = False
     try:
         # One episode a task (an episode takes 0.1 to 1 s, a task's messages ~1 ms): every episode finished in order
         # reaches this process, to be kept if the collection is interrupted.
-        with _sigint_blocked():  # the workers start (at the first submissions) with Ctrl-C blocked, until they ignore it
+        with _interrupts_blocked():  # the workers start (at the first submissions) with them blocked, until they ignore them
             futures = deque(executor.submit(_run_episode, index) for index in indices)
         while futures:  # each episode let go once handed over: the collection holds no more than the workers' lead
             yield futures.popleft().result()
@@ -298,28 +302,55 @@ def _episodes(spec: CollectionSpec, start: int, workers: int) -> Iterator[Episod
         if finished:
             executor.shutdown(wait=False)
         else:  # interrupted or failed: the episodes in progress are not kept, their workers are stopped
-            with _sigint_deferred(reraise=False):  # a second Ctrl-C meanwhile changes nothing
+            with _interrupts_deferred(reraise=False):  # a second Ctrl-C meanwhile changes nothing
                 _stop_workers(executor)
 
 
 def _stop_workers(executor: ProcessPoolExecutor) -> None:
-    """Shut ``executor`` down without waiting for its tasks: terminate its workers, then wait for the executor to
+    """Shut ``executor`` down without waiting for its tasks: kill its workers (they ignore SIGTERM), then wait for the executor to
     fail the pending futures and close its pipes. No future is cancelled first: in Python 3.11, the executor's thread
     raises InvalidStateError on a cancelled one when it finds its workers gone, and exiting before that thread is done
     can write to a pipe it closes (EBADF)."""
     for process in list((getattr(executor, "_processes", None) or {}).values()):
-        process.terminate()
+        process.kill()
     executor.shutdown(wait=True)
 
 
+#: The signals that stop a collection as Ctrl-C does: SIGINT and SIGTERM (``kill PID``).
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _interrupt(signum: int) -> KeyboardInterrupt:
+    """The ``KeyboardInterrupt`` a signal of :data:`INTERRUPTS` raises; a SIGTERM's is marked ``terminated`` (exit
+    status 143: :func:`sb3_cql.interrupts.exit_status`)."""
+    interrupt = KeyboardInterrupt()
+    if signum == signal.SIGTERM:
+        interrupt.terminated = True  # type: ignore[attr-defined]
+    return interrupt
+
+
+def _handles(signum: int, previous: Any) -> bool:
+    """Whether a collection handles ``signum`` whose handler was ``previous``: Ctrl-C where Python raises
+    ``KeyboardInterrupt`` (or a handler of the caller's), SIGTERM where it still has its default (or a handler)."""
+    return callable(previous) or (signum == signal.SIGTERM and previous == signal.SIG_DFL)
+
+
+def _raise_as_before(signum: int, previous: Any, frame: Any) -> None:
+    """What ``signum`` did with its ``previous`` handler: call it, or raise ``KeyboardInterrupt`` for a default one."""
+    if callable(previous):
+        previous(signum, frame)
+    elif previous == signal.SIG_DFL:
+        raise _interrupt(signum)
+
+
 @contextlib.contextmanager
-def _sigint_blocked() -> Iterator[None]:
-    """Block SIGINT in this thread while the block runs (POSIX; elsewhere nothing): processes started meanwhile
-    inherit the block, and a Ctrl-C arriving meanwhile is delivered after it."""
+def _interrupts_blocked() -> Iterator[None]:
+    """Block :data:`INTERRUPTS` in this thread while the block runs (POSIX; elsewhere nothing): processes started
+    meanwhile inherit the block, and a signal arriving meanwhile is delivered after it."""
     if not hasattr(signal, "pthread_sigmask"):
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, set(INTERRUPTS))
     try:
         yield
     finally:
@@ -327,48 +358,55 @@ def _sigint_blocked() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _sigint_noted() -> Iterator[Callable[[], bool]]:
-    """Raise ``KeyboardInterrupt`` on Ctrl-C as the handler there was does, and note it: the block gets a function
-    telling whether one came. Python drops an exception raised in a ``__del__`` (PyBullet's ``BulletClient``
-    disconnects in one, which a garbage collection can run at any moment), so a loop that checks the note still
-    stops. Only the main thread receives signals; elsewhere, or with Ctrl-C ignored, nothing is noted."""
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or not callable(previous):
-        yield lambda: False
+def _interrupts_noted() -> Iterator[Callable[[], int]]:
+    """Raise ``KeyboardInterrupt`` on Ctrl-C as the handler there was does (and on SIGTERM, which would end the process
+    without a word), and note it: the block gets a function telling whether one came. Python drops an exception
+    raised in a ``__del__`` (PyBullet's ``BulletClient`` disconnects in one, which a garbage collection can run at any
+    moment), so a loop that checks the note still stops: the function gives the first signal noted, 0 for none.
+    Only the main thread receives signals; elsewhere, or with the signals ignored, nothing is noted."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: 0
         return
-    noted: list[bool] = []
+    noted: list[int] = []
+    previous = {signum: signal.getsignal(signum) for signum in INTERRUPTS}
 
     def note(signum: int, frame: Any) -> None:
-        noted.append(True)
-        previous(signum, frame)
+        noted.append(signum)
+        _raise_as_before(signum, previous[signum], frame)
 
-    signal.signal(signal.SIGINT, note)
+    for signum, handler in previous.items():
+        if _handles(signum, handler):
+            signal.signal(signum, note)
     try:
-        yield lambda: bool(noted)
+        yield lambda: noted[0] if noted else 0
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            if _handles(signum, handler):
+                signal.signal(signum, handler)
 
 
 @contextlib.contextmanager
-def _sigint_deferred(reraise: bool = True) -> Iterator[None]:
-    """Hold a Ctrl-C (SIGINT) back until the block is done, so that a write to the dataset is never cut in half, then
-    raise ``KeyboardInterrupt`` (or call the handler there was) if one came and ``reraise``. Only the main thread
-    receives signals: in another one, the block just runs."""
-    previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or previous is None:
+def _interrupts_deferred(reraise: bool = True) -> Iterator[None]:
+    """Hold Ctrl-C and SIGTERM back until the block is done, so that a write is never cut in half, then do what the
+    first that came would have done (raise ``KeyboardInterrupt``, or call the handler there was) if ``reraise``.
+    Only the main thread receives signals: in another one, the block just runs."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    received = []
-    signal.signal(signal.SIGINT, lambda signum, frame: received.append(frame))
+    previous = {signum: signal.getsignal(signum) for signum in INTERRUPTS}
+    received: list[tuple[int, Any]] = []
+    for signum, handler in previous.items():
+        if _handles(signum, handler):
+            signal.signal(signum, lambda signum, frame: received.append((signum, frame)))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            if _handles(signum, handler):
+                signal.signal(signum, handler)
     if received and reraise:
-        if callable(previous):
-            previous(signal.SIGINT, received[0])
-        elif previous == signal.SIG_DFL:
-            raise KeyboardInterrupt
+        signum, frame = received[0]
+        _raise_as_before(signum, previous[signum], frame)
 
 
 def estimate(spec: CollectionSpec, n_episodes: int, workers: int) -> tuple[int, float | None, int]:
@@ -421,24 +459,106 @@ def _size(size: float) -> str:
     return f"{size / 1e9:.1f} GB"
 
 
-def _open_partial(partial: Path, spec: CollectionSpec, env: gym.Env) -> tuple[MinariStorage, list[bool]]:
-    """The storage of an interrupted collection of the same spec and the successes of its episodes, or a new
-    storage. Anything else in ``partial`` (another spec, an unreadable file) is removed, never trusted."""
-    spec_file = partial / SPEC_FILE
-    if spec_file.exists() and spec_file.read_text() == spec.to_json():
+def _resume(files: DatasetFiles, spec: CollectionSpec, overwrite: bool) -> tuple[set[int], list[bool]]:
+    """The episodes (indices) an interrupted collection of ``spec`` holds, and their successes; a new collection
+    where there is none. A partial collection of another spec, or one with a file that cannot be read, is refused
+    with one :class:`DatasetError` saying what it holds and what to do (``overwrite`` replaces it)."""
+    files.check_writable()
+    held_spec = files.spec()
+    if files.holds_anything() and held_spec != spec.to_json():
+        if not overwrite:
+            raise DatasetError(_other_collection(files, held_spec))
+        shutil.rmtree(files.partial)
+    if held_spec != spec.to_json():
+        files.start(spec.to_json())
+    files.episodes.mkdir(exist_ok=True)
+    if files.storage_before_episode_files.is_dir():  # a collection written before episode files: read it into them
+        episodes = files.read_storage_before_episode_files()
+        for first in range(0, len(episodes), WRITE_EVERY):
+            files.write_episodes(episodes[first : first + WRITE_EVERY])
+        shutil.rmtree(files.storage_before_episode_files)
+    held: set[int] = set()
+    successes: list[bool] = []
+    episode_files = files.episode_files()
+    for number, (indices, path) in enumerate(episode_files):
         try:
-            storage = MinariStorage.read(partial / "data")
-            episodes = storage.get_episodes(range(storage.total_episodes))
-            return storage, [bool(episode["rewards"][-1] > 0) for episode in episodes]
-        except Exception:
-            pass
-    shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
+            episodes = files.read_episodes(path)
+            if [episode.id for episode in episodes] != list(indices):
+                raise ValueError(f"it holds episodes {[episode.id for episode in episodes]}, not {indices}")
+        except Exception as error:
+            readable = sum(len(other) for other, _ in episode_files) - len(indices)
+            raise DatasetError(
+                f"the partial collection of {files.dataset_id} in {files.partial} has a damaged file {path.name} "
+                f"(episodes {indices.start}-{indices.stop - 1}: {' '.join(str(error).split()) or type(error).__name__});"
+                f" its other {readable} episodes are readable: remove {path} to collect its episodes again, or pass "
+                "--overwrite (overwrite=True) to start over"
+            ) from None
+        held.update(indices)
+        successes += [bool(episode.rewards[-1] > 0) for episode in episodes]
+    return held, successes
+
+
+def _other_collection(files: DatasetFiles, held_spec: str | None) -> str:
+    """What to say of a partial collection of ``files``'s id that is not the one asked for."""
+    summary = partial_summary(files)
+    replace = "pass --overwrite (overwrite=True) to replace it"
+    if summary is None:
+        what = f"{files.partial} holds files of a collection of {files.dataset_id} whose spec cannot be read"
+        if held_spec is None:
+            what = f"{files.partial} holds files that are not a collection of {files.dataset_id}"
+        return f"{what}: {replace}"
+    fields, held = summary
+    command = ids.collect_command(fields, files.dataset_id)
+    resume = f"resume it with: {command}" if command else "the collection of that spec resumes it"
+    return (
+        f"a partial collection of {files.dataset_id} is in {files.partial}: {held} of {fields['n_episodes']} episodes of "
+        f"another collection ({fields['policy']} policy, seed {fields['seed']}, noise {fields['noise']}, env_kwargs "
+        f"{fields['env_kwargs']}); {resume}, or {replace}"
+    )
+
+
+def _check_space(files: DatasetFiles, needed: int, what: str) -> None:
+    """One :class:`DatasetError` if the dataset's folder has less than ``needed`` bytes free."""
+    folder = files.final.parent
+    free = shutil.disk_usage(folder).free
+    if free < needed:
+        raise DatasetError(
+            f"not enough disk space in {folder} for {what}: about {_size(needed)} needed, {_size(free)} free; "
+            f"free some space (or set MINARI_DATASETS_PATH to another disk) and run the same command"
+            + (f" (the {files.episodes_held()} episodes collected are kept)" if files.episodes_held() else "")
+        )
+
+
+def _assemble(files: DatasetFiles, env: gym.Env, metadata: Callable[[list[bool]], dict[str, Any]]) -> None:
+    """Build the Minari dataset from the collection's episode files in ``assembling/``, with ``metadata(successes)``,
+    and rename it to ``assembled/`` once complete (built again from the files after a kill)."""
+    shutil.rmtree(files.assembling, ignore_errors=True)
+    if files.assembled.is_dir():  # complete already: a kill came after it was built
+        return
+    episode_files = files.episode_files()
+    data_bytes = sum(path.stat().st_size for _, path in episode_files)
+    _check_space(files, data_bytes + sum(map(len, (i for i, _ in episode_files))) * BYTES_PER_EPISODE, "its assembly")
+    files.assembling.mkdir()
     # With the spaces given, Minari makes no env of its own to read them (one it would drop at once: a PyBullet
     # client's __del__, which drops a Ctrl-C that arrives while it disconnects).
-    storage = MinariStorage.new(partial / "data", env.observation_space, env.action_space, env.spec, data_format="hdf5")
-    spec_file.write_text(spec.to_json())
-    return storage, []
+    storage = MinariStorage.new(files.assembling / "data", env.observation_space, env.action_space, env.spec,
+                                data_format="hdf5")  # fmt: skip
+    successes = []
+    try:
+        for _, path in episode_files:
+            episodes = files.read_episodes(path)
+            storage.update_episodes(episodes)
+            successes += [bool(episode.rewards[-1] > 0) for episode in episodes]
+            crash_point("assemble")
+        storage.update_metadata(metadata(successes))
+    except OSError as error:
+        shutil.rmtree(files.assembling, ignore_errors=True)
+        raise DatasetError(
+            f"cannot write the dataset {files.dataset_id} in {files.assembling}: {' '.join(str(error).split())}; "
+            f"its {files.episodes_held()} episodes are kept in {files.episodes}, and the same command assembles it"
+        ) from None
+    os.replace(files.assembling, files.assembled)
+    crash_point("assembled")
 
 
 def collect_dataset(
@@ -451,20 +571,25 @@ def collect_dataset(
 ) -> MinariDataset:
     """Collect ``spec.n_episodes`` episodes into the Minari dataset ``dataset_id`` and return it.
 
-    The data go to a hidden ``.partial`` folder beside the dataset, ``write_every`` episodes at a time, and are
-    renamed to the dataset's folder only when complete: an interrupted collection leaves no dataset under its
-    id, and running the same collection again resumes it. Actions are the executed ones; with noise, the
-    policy's clean actions are in the episodes' ``infos["clean_action"]``.
+    The episodes go to a hidden ``.partial`` folder beside the dataset, ``write_every`` at a time, each file written
+    whole or not at all; once all are there they are assembled into the dataset, which is renamed into place
+    (:mod:`sb3_cql.data.partial` has the layout). A kill at any instant leaves no dataset under its id, or the
+    complete one, and running the same collection again resumes it to the dataset an uninterrupted run gives. A
+    partial collection of another spec is kept, and this one refused with a :class:`DatasetError` saying what it
+    holds (``overwrite`` replaces it); so is a second collection of the id while one runs. Actions are the executed
+    ones; with noise, the policy's clean actions are in the episodes' ``infos["clean_action"]``.
 
     It prints (on stderr) one line before it starts: the episodes, the workers and about how long and how much disk
-    they take, or, resuming, how many episodes it already has. On Ctrl-C (``KeyboardInterrupt``), it writes the
-    episodes finished so far, prints one line saying how many are kept, and raises the ``KeyboardInterrupt`` again.
+    they take, or, resuming, how many episodes it already has; it refuses to start on a disk without room for them.
+    On Ctrl-C or SIGTERM (``KeyboardInterrupt``), it writes the episodes finished so far, prints one line saying how
+    many are kept, and raises the ``KeyboardInterrupt`` again.
 
     :param spec: what to collect.
     :param dataset_id: the Minari id; by default ``sb3cql/<env>/<policy>[-delta][-<N>k]-v0``, ``-<N>k`` for a
         number of episodes that is a multiple of 1,000 other than 10,000.
     :param workers: worker processes; the data do not depend on it.
-    :param overwrite: replace an existing dataset of that id (otherwise ``FileExistsError``).
+    :param overwrite: replace an existing dataset of that id (otherwise ``FileExistsError``), and a partial
+        collection of another spec.
     :param progress_bar: show episodes, transitions/s and the success rate so far.
     :param write_every: episodes written to disk at a time (``WRITE_EVERY`` by default): the most a crash loses.
     """
@@ -477,24 +602,40 @@ def collect_dataset(
         raise ValueError(f"workers must be >= 1, got {workers}")
     if write_every < 1:
         raise ValueError(f"write_every must be >= 1, got {write_every}")
-    final = _prepare(dataset_id, overwrite)
+    files = DatasetFiles(dataset_id)
+    with files.locked():
+        files.recover()
+        _prepare(dataset_id, overwrite)
+        return _collect(spec, files, workers, overwrite, progress_bar, write_every)
 
-    env, storage, pending, published = None, None, [], False
+
+def _collect(
+    spec: CollectionSpec, files: DatasetFiles, workers: int, overwrite: bool, progress_bar: bool, write_every: int
+) -> MinariDataset:
+    """:func:`collect_dataset` holding the dataset's lock."""
+    dataset_id = files.dataset_id
+    env, pending, published, held = None, [], False, 0
     try:
         env = gym.make(spec.env_id, **spec.env_kwargs)
         if spec.controller is None and spec.policy != "random":
-            make_policy(spec, env)  # a model that cannot be loaded fails here, not in every worker
-        partial = ids.partial_path(dataset_id)
-        storage, successes = _open_partial(partial, spec, env)
-        start = storage.total_episodes
-        print(_plan(spec, dataset_id, workers, start), file=sys.stderr, flush=True)
+            make_policy(spec, env)  # a model that cannot be loaded, or acts in another action mode, fails here
+        done, successes = _resume(files, spec, overwrite)
+        held = len(done)
+        missing = [index for index in range(spec.n_episodes) if index not in done]
+        print(_plan(spec, dataset_id, workers, held), file=sys.stderr, flush=True)
+        if missing:
+            _, _, size = estimate(spec, len(missing), workers)
+            _, _, total = estimate(spec, spec.n_episodes, workers)
+            _check_space(files, size + total, f"{len(missing)} episodes and the dataset's assembly")
         steps, begin = 0, time.perf_counter()
         with (
-            _sigint_noted() as interrupted,
-            contextlib.closing(_episodes(spec, start, workers)) as episodes,
-            tqdm(total=spec.n_episodes, initial=start, desc=dataset_id, unit="ep", disable=not progress_bar) as bar,
+            _interrupts_noted() as interrupted,
+            contextlib.closing(_episodes(spec, missing, workers)) as episodes,
+            tqdm(total=spec.n_episodes, initial=held, desc=dataset_id, unit="ep", disable=not progress_bar) as bar,
         ):
             for episode in episodes:
+                if pending and episode.id != pending[-1].id + 1:  # a file holds consecutive episodes
+                    held += _write(files, pending)
                 pending.append(episode)
                 successes.append(bool(episode.rewards[-1] > 0))
                 steps += len(episode.rewards)
@@ -502,23 +643,22 @@ def collect_dataset(
                 rate = steps / (time.perf_counter() - begin)
                 bar.set_postfix(transitions_per_s=f"{rate:.0f}", success_rate=f"{np.mean(successes):.3f}")
                 if len(pending) >= write_every:
-                    _write(storage, pending)
+                    held += _write(files, pending)
                 if interrupted():  # a Ctrl-C whose KeyboardInterrupt Python dropped
-                    raise KeyboardInterrupt
-            _write(storage, pending)
+                    raise _interrupt(interrupted())
+            held += _write(files, pending)
             if interrupted():
-                raise KeyboardInterrupt
-        with _sigint_deferred():
-            storage.update_metadata(_metadata(dataset_id, spec, successes, env))
-            (partial / SPEC_FILE).unlink()
-            dataset = _publish(partial, final)
+                raise _interrupt(interrupted())
+            _assemble(files, env, lambda successes: _metadata(dataset_id, spec, successes, env))
+        with _interrupts_deferred():
+            final = files.publish()
             published = True
-        return dataset
+        return MinariDataset(final / "data")
     except KeyboardInterrupt as interrupt:
-        with _sigint_deferred(reraise=False):  # more Ctrl-C while the finished episodes are written change nothing
-            if storage is not None and not published:
-                _write(storage, pending)
-            print(_interrupted(dataset_id, spec, storage, published), file=sys.stderr, flush=True)
+        with _interrupts_deferred(reraise=False):  # more Ctrl-C while the finished episodes are written change nothing
+            if not published and pending:
+                held += _write(files, pending)
+            print(_interrupted(dataset_id, spec, held, env is not None, published), file=sys.stderr, flush=True)
         interrupt.said = True  # type: ignore[attr-defined]  # what was kept is said: callers need not say more
         raise
     finally:
@@ -526,23 +666,26 @@ def collect_dataset(
             env.close()
 
 
-def _write(storage: MinariStorage, pending: list[EpisodeBuffer]) -> None:
-    """Append the ``pending`` episodes to ``storage`` and empty the list, whole even if Ctrl-C comes meanwhile."""
-    with _sigint_deferred():
+def _write(files: DatasetFiles, pending: list[EpisodeBuffer]) -> int:
+    """Write the ``pending`` episodes as one file, whole even if Ctrl-C comes meanwhile, empty the list and return how
+    many were written."""
+    with _interrupts_deferred():
+        written = len(pending)
         if pending:
-            storage.update_episodes(pending)
+            files.write_episodes(pending)
             pending.clear()
+    return written
 
 
-def _interrupted(dataset_id: str, spec: CollectionSpec, storage: MinariStorage | None, published: bool) -> str:
+def _interrupted(dataset_id: str, spec: CollectionSpec, held: int, started: bool, published: bool) -> str:
     """The line an interrupted collection prints."""
     if published:
         return f"interrupted: {dataset_id} was already complete ({spec.n_episodes} episodes)"
-    if storage is None:
+    if not started:
         return f"interrupted before collecting {dataset_id}: the same command starts (or resumes) it"
-    return (
-        f"interrupted: {storage.total_episodes} of {spec.n_episodes} episodes of {dataset_id} kept; the same command resumes"
-    )
+    if held == spec.n_episodes:
+        return f"interrupted: all {held} episodes of {dataset_id} kept; the same command assembles the dataset"
+    return f"interrupted: {held} of {spec.n_episodes} episodes of {dataset_id} kept; the same command resumes"
 
 
 def ensure_dataset(
@@ -582,54 +725,49 @@ def standard_collection(dataset_id: str) -> CollectionSpec | None:
 def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False) -> MinariDataset:
     """Combine the datasets ``source_ids`` (same env and spaces) into a new dataset ``dataset_id``, written
     atomically like :func:`collect_dataset`; its metadata lists them under ``combined_datasets``."""
-    from sb3_cql.data.replay import load_dataset
-
-    final = _prepare(dataset_id, overwrite)
-    sources = [load_dataset(source) for source in source_ids]
-    env_spec = validate_datasets_to_combine(sources)
-    partial = ids.partial_path(dataset_id)
-    shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
-    storage = MinariStorage.new(partial / "data", env_spec=env_spec, data_format="hdf5")
-    for source in sources:
-        storage.update_from_storage(source.storage)
-    successes = [bool(e["rewards"][-1] > 0) for e in storage.get_episodes(range(storage.total_episodes))]
-    storage.update_metadata(
-        {
-            "dataset_id": dataset_id,
-            "minari_version": minari.__version__,
-            "combined_datasets": list(source_ids),
-            "description": f"the datasets {', '.join(source_ids)} combined",
-            "success_rate": float(np.mean(successes)),
-            **{key: sources[0].storage.metadata[key] for key in ("env_id", "env_kwargs", "ref_min_score", "ref_max_score")},
-        }
-    )
-    return _publish(partial, final)
+    files = DatasetFiles(dataset_id)
+    with files.locked():
+        files.recover()
+        _prepare(dataset_id, overwrite)
+        sources = [load_dataset(source) for source in source_ids]
+        env_spec = validate_datasets_to_combine(sources)
+        if files.holds_anything():
+            if not overwrite:
+                raise DatasetError(_other_collection(files, files.spec()))
+            shutil.rmtree(files.partial)
+        files.assembling.mkdir(parents=True)
+        storage = MinariStorage.new(files.assembling / "data", env_spec=env_spec, data_format="hdf5")
+        for source in sources:
+            storage.update_from_storage(source.storage)
+        successes = [bool(e["rewards"][-1] > 0) for e in storage.get_episodes(range(storage.total_episodes))]
+        storage.update_metadata(
+            {
+                "dataset_id": dataset_id,
+                "minari_version": minari.__version__,
+                "combined_datasets": list(source_ids),
+                "description": f"the datasets {', '.join(source_ids)} combined",
+                "success_rate": float(np.mean(successes)),
+                **{key: sources[0].storage.metadata[key] for key in ("env_id", "env_kwargs", "ref_min_score", "ref_max_score")},
+            }
+        )
+        os.replace(files.assembling, files.assembled)
+        with _interrupts_deferred():
+            return MinariDataset(files.publish() / "data")
 
 
 def _prepare(dataset_id: str, overwrite: bool) -> Path:
-    """The folder of ``dataset_id``, after checking it may be written and creating its Minari namespace."""
+    """The folder of ``dataset_id``, after checking it may be written and creating its Minari namespace. A dataset
+    there is a ``FileExistsError`` unless ``overwrite``; a damaged one (no ``metadata.json``) a
+    :class:`DatasetError`, as :func:`~sb3_cql.data.load_dataset` has it."""
     final = ids.dataset_path(dataset_id)
     if final.exists() and not overwrite:
+        if not ids.dataset_exists(dataset_id):
+            raise DatasetError(damaged_dataset(dataset_id))
         raise FileExistsError(f"dataset {dataset_id} already exists at {final}: pass overwrite=True (--overwrite)")
     namespace = parse_dataset_id(dataset_id)[0]
     if namespace is not None and namespace not in list_local_namespaces():
         create_namespace(namespace, description="Panda grasping datasets written by sb3-cql")
     return final
-
-
-def _publish(partial: Path, final: Path) -> MinariDataset:
-    """Move a complete dataset from ``partial`` to ``final`` (replacing it) by renames, so that ``final`` never
-    holds half a dataset."""
-    if final.exists():
-        old = final.with_name(f".{final.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(final, old)
-        os.replace(partial, final)
-        shutil.rmtree(old)
-    else:
-        os.replace(partial, final)
-    return MinariDataset(final / "data")
 
 
 def _metadata(dataset_id: str, spec: CollectionSpec, successes: list[bool], env: gym.Env) -> dict[str, Any]:

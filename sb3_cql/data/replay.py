@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import shlex
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
@@ -25,16 +27,25 @@ class DatasetError(ValueError):
 
 
 def load_dataset(dataset_id: str) -> MinariDataset:
-    """Open the Minari dataset ``dataset_id``, with an error naming it (and how to make it) if it is missing
-    or unreadable."""
+    """Open the Minari dataset ``dataset_id``, with an error naming it (and how to make it) if it is missing,
+    partial, damaged or unreadable. A replacement of it that a kill cut short is completed first
+    (:meth:`~sb3_cql.data.partial.DatasetFiles.recover`), unless a collection of it is running."""
+    from sb3_cql.data.partial import DatasetFiles
+
+    files = DatasetFiles(dataset_id)
+    if (files.publishing.exists() or files.old.exists()) and not files.is_locked():
+        with contextlib.suppress(DatasetError, OSError), files.locked():
+            files.recover()
     path = ids.dataset_path(dataset_id)
     if not ids.dataset_exists(dataset_id):
-        partial = _partial_collection(dataset_id)
+        if path.exists():
+            raise DatasetError(damaged_dataset(dataset_id))
+        partial = _partial_collection(files)
         if partial is not None:
             raise DatasetError(partial)
         raise DatasetError(
             f"dataset {dataset_id} not found at {path} (MINARI_DATASETS_PATH or ~/.minari/datasets); "
-            f"collect it with: python -m sb3_cql.data collect --dataset-id {dataset_id} ..."
+            f"collect it with: python -m sb3_cql.data collect --dataset-id {shlex.quote(dataset_id)} ..."
         )
     try:
         dataset = MinariDataset(path / "data")
@@ -44,19 +55,38 @@ def load_dataset(dataset_id: str) -> MinariDataset:
     return dataset
 
 
-def _partial_collection(dataset_id: str) -> str | None:
-    """What to say of an interrupted collection of ``dataset_id``, or ``None`` if there is none."""
-    partial = ids.partial_path(dataset_id)
-    try:
-        spec = json.loads((partial / ids.SPEC_FILE).read_text())
-        collected = json.loads((partial / "data" / "metadata.json").read_text())["total_episodes"]
-        command = ids.collect_command(spec, dataset_id)
-    except (OSError, ValueError, KeyError, TypeError):  # not a collection's partial folder
-        return None
-    resume = f"resume it with: {command}" if command else "the same collection (collect_dataset) resumes it"
+def damaged_dataset(dataset_id: str) -> str:
+    """What to say of a dataset folder without its ``data/metadata.json`` (Minari writes it last: without it, the
+    folder cannot be read), and how to collect it again."""
+    from sb3_cql.data.collection import standard_collection
+
+    path = ids.dataset_path(dataset_id)
+    spec = standard_collection(dataset_id)
+    command = ids.collect_command(json.loads(spec.to_json()), dataset_id) if spec is not None else None
+    again = command or f"python -m sb3_cql.data collect --dataset-id {shlex.quote(dataset_id)} ..."
     return (
-        f"dataset {dataset_id} is partial: its collection was interrupted after {collected} of {spec['n_episodes']} "
-        f"episodes (kept in {partial}); {resume}"
+        f"dataset {dataset_id} at {path} is damaged: it has no data/metadata.json and cannot be read; replace it with: "
+        f"{again} --overwrite"
+    )
+
+
+def _partial_collection(files: Any) -> str | None:
+    """What to say of an interrupted collection of ``files``'s dataset, or ``None`` if there is none."""
+    from sb3_cql.data.partial import partial_summary
+
+    summary = partial_summary(files)
+    if summary is None:
+        return None
+    spec, collected = summary
+    command = ids.collect_command(spec, files.dataset_id)
+    resume = f"resume it with: {command}" if command else "the same collection (collect_dataset) resumes it"
+    if files.storage_before_episode_files.is_dir():  # written before episode files: its metadata has a count
+        with contextlib.suppress(OSError, ValueError, KeyError):
+            metadata = json.loads((files.storage_before_episode_files / "metadata.json").read_text())
+            collected += int(metadata["total_episodes"])
+    return (
+        f"dataset {files.dataset_id} is partial: its collection was interrupted after {collected} of "
+        f"{spec['n_episodes']} episodes (kept in {files.partial}); {resume}"
     )
 
 

@@ -1,0 +1,71 @@
+"""Ctrl-C and SIGTERM in the package's command lines: one line and the shell's status, never a traceback, from the
+first line of the program on (its start-up imports take seconds: torch, PyBullet, SB3).
+
+A command-line module calls :func:`quiet_startup` before its heavy imports and :func:`started` once they are done;
+from then on Ctrl-C is Python's ``KeyboardInterrupt`` again, for the command to end on its own line.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+from typing import Any
+
+#: The shell's exit status of a program ended by Ctrl-C (128 + SIGINT) and by SIGTERM (128 + SIGTERM).
+INTERRUPTED_STATUS = 128 + signal.SIGINT
+TERMINATED_STATUS = 128 + signal.SIGTERM
+
+
+def quiet_startup(prog: str) -> None:
+    """Until :func:`started`, Ctrl-C or SIGTERM ends the program with one line (``PROG: interrupted while starting``)
+    and status 130 or 143: nothing has been done that could be kept. Only the main thread can set handlers."""
+
+    def end(signum: int, frame: Any) -> None:
+        sys.stderr.write(f"{prog}: interrupted while starting: nothing done\n")
+        sys.stderr.flush()
+        os._exit(INTERRUPTED_STATUS if signum == signal.SIGINT else TERMINATED_STATUS)
+
+    signal.signal(signal.SIGINT, end)
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, end)
+
+
+def started() -> None:
+    """Ctrl-C raises ``KeyboardInterrupt`` again, and SIGTERM its default action, for the command to handle."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def terminate_as_interrupt() -> None:
+    """SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does (a ``kill PID`` then ends the command as Ctrl-C would,
+    keeping what it keeps), marked ``terminated`` for the exit status :func:`exit_status` gives."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        error = KeyboardInterrupt()
+        error.terminated = True  # type: ignore[attr-defined]
+        raise error
+
+    signal.signal(signal.SIGTERM, interrupt)
+
+
+def exit_status(interrupt: BaseException) -> int:
+    """130 for Ctrl-C, 143 for a SIGTERM that :func:`terminate_as_interrupt` turned into ``interrupt``."""
+    return TERMINATED_STATUS if getattr(interrupt, "terminated", False) else INTERRUPTED_STATUS
+
+
+#: prctl's option: the signal this process gets when its parent dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent: int) -> None:
+    """Linux: have the kernel kill this process (``SIGKILL``) when its parent dies, so that a killed command takes
+    its worker processes along instead of leaving them waiting or writing beside a new run. ``parent``: the
+    expected parent's pid (exit now if it is already gone). Elsewhere nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # it died before the prctl
+        os._exit(1)
