@@ -1,6 +1,13 @@
 """sb3-cql: Conservative Q-Learning for Stable-Baselines3 and the Panda grasping tasks it learns."""
 
+import sys
+
 __version__ = "0.1.0"
+
+if getattr(sys, "argv", [""])[:1] == ["-m"]:  # `python -m sb3_cql....` importing its packages: Ctrl-C is one line
+    from sb3_cql.interrupts import quiet_command_startup
+
+    quiet_command_startup()
 
 
 def __getattr__(name: str):

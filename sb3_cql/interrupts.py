@@ -1,8 +1,10 @@
 """Ctrl-C and SIGTERM in the package's command lines: one line and the shell's status, never a traceback, from the
 first line of the program on (its start-up imports take seconds: torch, PyBullet, SB3).
 
-A command-line module calls :func:`quiet_startup` before its heavy imports and :func:`started` once they are done;
-from then on Ctrl-C is Python's ``KeyboardInterrupt`` again, for the command to end on its own line.
+``python -m`` imports a command's packages before it runs the command's module: the package's ``__init__`` calls
+:func:`quiet_command_startup`, which quiets the start-up of the :data:`COMMANDS`, and each of them calls
+:func:`started` once its imports are done; from then on Ctrl-C is Python's ``KeyboardInterrupt`` again, for the
+command to end on its own line.
 """
 
 from __future__ import annotations
@@ -15,6 +17,22 @@ from typing import Any
 #: The shell's exit status of a program ended by Ctrl-C (128 + SIGINT) and by SIGTERM (128 + SIGTERM).
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 TERMINATED_STATUS = 128 + signal.SIGTERM
+
+
+#: The package's command lines (``python -m MODULE``), each of which calls :func:`started` after its imports.
+COMMANDS = ("sb3_cql.data", "sb3_cql.evaluate", "sb3_cql.benchmark")
+
+
+def quiet_command_startup() -> None:
+    """:func:`quiet_startup` if this process is ``python -m`` one of :data:`COMMANDS` still importing its packages
+    (``sys.argv[0]`` is ``-m`` until the module runs); nothing otherwise."""
+    argv = getattr(sys, "orig_argv", None) or []
+    if getattr(sys, "argv", [""])[:1] != ["-m"] or "-m" not in argv[:-1]:
+        return
+    module = argv[argv.index("-m") + 1]
+    module = module.removesuffix(".__main__")
+    if module in COMMANDS:
+        quiet_startup(f"python -m {module}")
 
 
 def quiet_startup(prog: str) -> None:

@@ -336,21 +336,37 @@ def test_truncated_dataset_file_is_reported():
         load_dataset("sb3cql/Panda-v0/pid-v0")
 
 
-def test_nan_in_dataset_is_reported():
+@pytest.mark.parametrize(
+    "field, step, value, message",
+    [
+        ("observations", 2, np.nan, r"episode 0, step 2: observation\[28\] is nan, not finite$"),
+        ("rewards", 1, np.inf, r"episode 0, step 1: reward is inf, not finite$"),
+        ("actions", 1, np.nan, r"episode 0, step 1: action\[8\] is nan, not finite$"),
+        ("actions", 2, 1.0, r"episode 0, step 2: action\[8\] is 1, outside the action space's bounds \[0, 0.04\] "
+                            r"\(data of another action mode\?\)"),
+    ],
+)
+def test_non_finite_values_and_actions_outside_the_action_space_are_refused_naming_episode_and_step(
+    field, step, value, message
+):
     env = gym.make("Panda-v0")
-    observations = np.zeros((4, 29), dtype=np.float32)
-    observations[2, 5] = np.nan
+    space = env.action_space
+    arrays = {
+        "observations": np.zeros((4, 29), dtype=np.float32),
+        "actions": np.tile((space.low + space.high) / 2, (3, 1)).astype(np.float32),
+        "rewards": np.zeros(3),
+    }
+    if field == "rewards":
+        arrays[field][step] = value
+    else:
+        arrays[field][step, -1] = value  # the gripper's action: 1.0 lies far beyond its 0.04 bound
     episode = minari.data_collector.EpisodeBuffer(
-        observations=observations,
-        actions=np.zeros((3, 9), dtype=np.float32),
-        rewards=np.zeros(3),
-        terminations=np.zeros(3, dtype=bool),
-        truncations=np.array([False, False, True]),
+        **arrays, terminations=np.zeros(3, dtype=bool), truncations=np.array([False, False, True])
     )
-    minari.create_dataset_from_buffers("sb3cql/Panda-v0/nan-v0", [episode], env=env, algorithm_name="test", author="t",
+    minari.create_dataset_from_buffers("sb3cql/Panda-v0/bad-v0", [episode], env=env, algorithm_name="test", author="t",
                                        author_email="t", code_permalink="t", description="t")  # fmt: skip
-    with pytest.raises(DatasetError, match="NaN"):
-        fill_replay_buffer("sb3cql/Panda-v0/nan-v0", env.observation_space, env.action_space)
+    with pytest.raises(DatasetError, match=message):
+        fill_replay_buffer("sb3cql/Panda-v0/bad-v0", env.observation_space, env.action_space)
 
 
 def test_command_line_collects_and_describes(capsys):

@@ -7,9 +7,11 @@ python -m sb3_cql.data collect --env Panda-v0 --policy logs/sac/Panda-v0_1/best_
 python -m sb3_cql.data mix --dataset-id sb3cql/Panda-v0/mixed-v0 sb3cql/Panda-v0/pid-v0 sb3cql/Panda-v0/noisy-v0
 python -m sb3_cql.data info sb3cql/Panda-v0/pid-v0
 
-A collection prints what it will do before it starts. Ctrl-C stops it with one line saying how many episodes are
-kept (exit status 130); the same command resumes it. A missing, partial or corrupt dataset, an unknown env id or a
-model that cannot be loaded is one line on stderr (exit status 2).
+A collection prints what it will do before it starts. Ctrl-C (or SIGTERM) stops it with one line saying how many
+episodes are kept (exit status 130, 143 for SIGTERM); the same command resumes it, whatever moment a kill came at. A
+model policy acts in the action mode it was trained in (``--action-mode`` may only repeat it). A missing, partial,
+damaged or corrupt dataset, one being written by another command, a disk without room, an unknown env id or a model
+that cannot be loaded is one line on stderr (exit status 2).
 """
 
 from __future__ import annotations
@@ -23,8 +25,9 @@ import gymnasium
 
 import envs
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset, mix_datasets
-from sb3_cql.data.collection import WRITE_EVERY
+from sb3_cql.data.collection import WRITE_EVERY, model_action_mode
 from sb3_cql.data.ids import POLICIES, dataset_path
+from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
 
 PROG = "python -m sb3_cql.data"
 
@@ -40,7 +43,8 @@ def main(argv: list[str] | None = None) -> None:
     collect.add_argument("--episodes", type=int, default=10_000)
     collect.add_argument("--seed", type=int, default=0, help="episode i is reset with seed + i")
     collect.add_argument("--noise", type=float, default=None, help="std (rad) of noise on the executed arm targets")
-    collect.add_argument("--action-mode", default="absolute", choices=["absolute", "delta"])
+    collect.add_argument("--action-mode", default=None, choices=["absolute", "delta"],
+                         help="the env's action mode (default: absolute; a model policy's own)")
     collect.add_argument("--workers", type=int, default=1)
     collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
     collect.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that id")
@@ -62,11 +66,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     try:
         _run(args)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         if args.command == "mix":
             print(f"interrupted: {args.dataset_id} not written", file=sys.stderr)
-        # collect printed what it kept; info wrote nothing
-        raise SystemExit(130) from None
+        elif not getattr(interrupt, "said", False):  # collect says what it kept; info wrote nothing
+            print("interrupted: nothing written", file=sys.stderr)
+        raise SystemExit(exit_status(interrupt)) from None
     except (DatasetError, FileExistsError, ValueError, OSError, gymnasium.error.Error) as error:
         print(f"{PROG}: error: {' '.join(str(error).split())}", file=sys.stderr)
         raise SystemExit(2) from None
@@ -74,13 +79,17 @@ def main(argv: list[str] | None = None) -> None:
 
 def _run(args: argparse.Namespace) -> None:
     if args.command == "collect":
+        action_mode = args.action_mode
+        if args.policy not in POLICIES:
+            action_mode = model_action_mode(args.policy, args.algo, args.env, args.action_mode)
+        action_mode = action_mode or "absolute"
         spec = CollectionSpec(
             env_id=args.env,
             policy=args.policy,
             n_episodes=args.episodes,
             seed=args.seed,
             noise=args.noise,
-            env_kwargs={"action_mode": args.action_mode} if args.action_mode != "absolute" else {},
+            env_kwargs={"action_mode": action_mode} if action_mode != "absolute" else {},
             algo=args.algo,
         )
         dataset = collect_dataset(
@@ -102,6 +111,8 @@ def _run(args: argparse.Namespace) -> None:
 
 
 if __name__ == "__main__":
+    started()
+    terminate_as_interrupt()
     try:
         main()
     finally:

@@ -204,6 +204,12 @@ def make_policy(spec: CollectionSpec, env: gym.Env) -> BehaviourPolicy:
             model = ALGOS[spec.algo].load(spec.policy, device="cpu")
         except Exception as error:
             raise ValueError(f"cannot load {spec.policy} as a {spec.algo} model: {error}") from error
+        if model.action_space != action_space:  # another action mode: its actions would mean other things here
+            from sb3_cql.evaluate import env_kwargs_for
+
+            env_kwargs_for(model, spec.env_id, {**spec.env_kwargs, "action_mode": spec.action_mode})  # says how
+            raise ValueError(f"the model {spec.policy}'s action space {model.action_space} is not {spec.env_id}'s "
+                             f"{action_space}")  # fmt: skip
         predict = model.predict
     if spec.noise == 0:
         return BehaviourPolicy(predict, action_space, controller=controller)
@@ -213,6 +219,27 @@ def make_policy(spec: CollectionSpec, env: gym.Env) -> BehaviourPolicy:
     n_arm = len(envs.robot.ARM_JOINTS)
     scale[:n_arm] = spec.noise / (unwrapped.config.arm_max_delta if unwrapped.action_mode == "delta" else 1.0)
     return BehaviourPolicy(predict, action_space, scale, controller)
+
+
+def model_action_mode(model_path: str, algo: str | None, env_id: str, given: str | None = None) -> str | None:
+    """The action mode a saved SB3 model acts in on ``env_id`` (the mode whose action space is the model's), as
+    ``python -m sb3_cql.evaluate`` finds it; ``given`` is checked against it (a ``ValueError`` if it is another).
+    ``given`` where the model's spaces cannot be read (:func:`make_policy` then says why it cannot be loaded)."""
+    from types import SimpleNamespace
+
+    from rl_zoo3.utils import ALGOS
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    from sb3_cql.evaluate import env_kwargs_for
+
+    if algo not in ALGOS:
+        return given
+    try:
+        data, _, _ = load_from_zip_file(model_path, device="cpu", load_data=True)
+        spaces = SimpleNamespace(observation_space=data["observation_space"], action_space=data["action_space"])
+    except Exception:
+        return given
+    return env_kwargs_for(spaces, env_id, {"action_mode": given} if given else {})["action_mode"]
 
 
 _worker: dict[str, Any] = {}

@@ -196,13 +196,44 @@ def fill_replay_buffer(
         replay_buffer.rewards[rows, 0] = rewards
         replay_buffer.dones[rows, 0] = terminations
         replay_buffer.timeouts[rows, 0] = truncations
-        finite_observations = all(np.isfinite(array).all() for _, array in _items(episode_observations))
-        if not (finite_observations and np.isfinite(actions[rows]).all() and np.isfinite(rewards).all()):
-            raise DatasetError(f"dataset {name}: episode {episode_id} holds NaN or infinite values")
+        problem = _bad_values(episode_observations, episode_actions, rewards, action_space)
+        if problem is not None:
+            raise DatasetError(f"dataset {name}: episode {episode_id}, {problem}")
         position += length
     replay_buffer.pos = position % replay_buffer.buffer_size
     replay_buffer.full = position == replay_buffer.buffer_size
     return replay_buffer
+
+
+#: How far a data action may lie outside the action space's bounds (float32 rounding of data written elsewhere).
+BOUNDS_TOLERANCE = 1e-5
+
+
+def _bad_values(
+    observations: np.ndarray | dict[str, np.ndarray], actions: np.ndarray, rewards: np.ndarray, action_space: spaces.Box
+) -> str | None:
+    """Where an episode holds a NaN or infinite value, or an action outside ``action_space`` (data of another action
+    mode), as ``"step T: ..."``; ``None`` if nowhere."""
+    checks = [(f"observation {key!r}" if key else "observation", array) for key, array in _items(observations)]
+    for what, array in [*checks, ("action", actions), ("reward", rewards)]:
+        flat = array.reshape(len(array), -1)
+        bad = ~np.isfinite(flat)
+        if bad.any():
+            step, component = np.argwhere(bad)[0]
+            where = f"[{component}]" if flat.shape[1] > 1 else ""
+            return f"step {step}: {what}{where} is {flat[step, component]:g}, not finite"
+    low, high = action_space.low.reshape(-1), action_space.high.reshape(-1)
+    flat = actions.reshape(len(actions), -1)
+    outside = (flat < low - BOUNDS_TOLERANCE * np.maximum(1.0, np.abs(low))) | (
+        flat > high + BOUNDS_TOLERANCE * np.maximum(1.0, np.abs(high))
+    )
+    if outside.any():
+        step, component = np.argwhere(outside)[0]
+        return (
+            f"step {step}: action[{component}] is {flat[step, component]:g}, outside the action space's bounds "
+            f"[{low[component]:g}, {high[component]:g}] (data of another action mode?)"
+        )
+    return None
 
 
 def _episode_arrays(
