@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> None:
                          help="the env's action mode (default: absolute; a model policy's own)")
     collect.add_argument("--workers", type=int, default=1)
     collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
-    collect.add_argument("--overwrite", action="store_true", help="replace an existing dataset of that id")
+    collect.add_argument("--overwrite", action="store_true",
+                         help="replace an existing dataset of that id, and a partial collection of another spec")
     collect.add_argument(
         "--write-every",
         type=int,

@@ -6,8 +6,9 @@ dataset does not depend on the number of workers and an interrupted collection r
 
 Before it starts, a collection prints (on stderr) what it will do: the episodes, the workers, and about how long
 and how much disk it takes, from the measurements below; a resumed one says how many episodes it already has. On
-Ctrl-C, the episodes finished in order are written, one line says how many are kept, and ``KeyboardInterrupt`` goes
-on to the caller; the workers ignore Ctrl-C, and the parent stops them.
+Ctrl-C or SIGTERM, the episodes finished are written, one line says how many are kept, and ``KeyboardInterrupt`` goes
+on to the caller; the workers ignore both, the parent stops them, and they die with it if it is killed. The files
+a collection writes, and why a kill at any instant loses nothing kept, are :mod:`sb3_cql.data.partial`'s.
 """
 
 from __future__ import annotations
