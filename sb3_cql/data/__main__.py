@@ -2,6 +2,7 @@
 
 python -m sb3_cql.data collect --env Panda-v0 --policy pid --episodes 10000 --seed 0 --workers 2
 python -m sb3_cql.data collect --env Panda-v0 --policy noisy --noise 0.03 --episodes 1000
+python -m sb3_cql.data collect --env Panda-v0 --policy noisy-regrasp --episodes 10000 --ray auto
 python -m sb3_cql.data collect --env PandaForce-v0 --policy noisy-regrasp-yaw --action-mode delta --episodes 1000
 python -m sb3_cql.data collect --env Panda-v0 --policy logs/sac/Panda-v0_1/best_model.zip --algo sac
 python -m sb3_cql.data mix --dataset-id sb3cql/Panda-v0/mixed-v0 sb3cql/Panda-v0/pid-v0 sb3cql/Panda-v0/noisy-v0
@@ -27,6 +28,7 @@ import envs
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset, mix_datasets
 from sb3_cql.data.collection import WRITE_EVERY, model_action_mode
 from sb3_cql.data.ids import POLICIES, dataset_path
+from sb3_cql.cluster import ClusterError
 from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
 
 PROG = "python -m sb3_cql.data"
@@ -46,6 +48,9 @@ def main(argv: list[str] | None = None) -> None:
     collect.add_argument("--action-mode", default=None, choices=["absolute", "delta"],
                          help="the env's action mode (default: absolute; a model policy's own)")
     collect.add_argument("--workers", type=int, default=1)
+    collect.add_argument("--ray", metavar="ADDRESS", default=None,
+                         help="run the episodes as Ray tasks on the cluster at ADDRESS (auto, host:port or "
+                              "ray://host:port) instead of --workers processes: the same dataset")
     collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
     collect.add_argument("--overwrite", action="store_true",
                          help="replace an existing dataset of that id, and a partial collection of another spec")
@@ -73,7 +78,7 @@ def main(argv: list[str] | None = None) -> None:
         elif not getattr(interrupt, "said", False):  # collect says what it kept; info wrote nothing
             print("interrupted: nothing written", file=sys.stderr)
         raise SystemExit(exit_status(interrupt)) from None
-    except (DatasetError, FileExistsError, ValueError, OSError, gymnasium.error.Error) as error:
+    except (DatasetError, FileExistsError, ValueError, OSError, ClusterError, gymnasium.error.Error) as error:
         print(f"{PROG}: error: {' '.join(str(error).split())}", file=sys.stderr)
         raise SystemExit(2) from None
 
@@ -94,7 +99,8 @@ def _run(args: argparse.Namespace) -> None:
             algo=args.algo,
         )
         dataset = collect_dataset(
-            spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite, write_every=args.write_every
+            spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite, write_every=args.write_every,
+            ray_address=args.ray,
         )
         metadata = dataset.storage.metadata
         print(

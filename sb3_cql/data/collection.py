@@ -299,8 +299,40 @@ def _run_episode(index: int) -> EpisodeBuffer:
     )
 
 
-def _episodes(spec: CollectionSpec, indices: list[int], workers: int) -> Iterator[EpisodeBuffer]:
-    """The episodes ``indices`` in order, from ``workers`` processes (in this one if 1)."""
+def _run_episodes(spec: CollectionSpec, indices: list[int]) -> list[EpisodeBuffer]:
+    """Roll out the episodes ``indices`` of ``spec`` in this process (a Ray task: the env and policy of its process are
+    kept for the next task of the same collection)."""
+    if _worker.get("spec") != spec:
+        if "env" in _worker:
+            _worker["env"].close()
+        _init_worker(spec)
+    return [_run_episode(index) for index in indices]
+
+
+def _chunks(indices: list[int], size: int) -> list[list[int]]:
+    """``indices`` in runs of at most ``size`` consecutive ones: the episodes of one file, one Ray task."""
+    chunks: list[list[int]] = []
+    for index in indices:
+        if chunks and len(chunks[-1]) < size and chunks[-1][-1] == index - 1:
+            chunks[-1].append(index)
+        else:
+            chunks.append([index])
+    return chunks
+
+
+def _episodes(
+    spec: CollectionSpec, indices: list[int], workers: int, ray_address: str | None = None, chunk: int = WRITE_EVERY
+) -> Iterator[EpisodeBuffer]:
+    """The episodes ``indices`` in order, from ``workers`` processes (in this one if 1), or from Ray tasks of ``chunk``
+    episodes each on the cluster at ``ray_address`` (:func:`sb3_cql.cluster.run_in_order`; a task whose node dies is
+    run again: the episodes do not depend on where they run)."""
+    if ray_address is not None:
+        from sb3_cql.cluster import run_in_order
+
+        tasks = ((spec, indices) for indices in _chunks(indices, chunk))
+        for episodes in run_in_order(_run_episodes, tasks, ray_address, num_cpus=1, max_retries=3):
+            yield from episodes
+        return
     if workers == 1:
         _init_worker(spec)
         try:
@@ -452,15 +484,16 @@ def estimate(spec: CollectionSpec, n_episodes: int, workers: int) -> tuple[int, 
     return transitions, seconds, n_episodes * BYTES_PER_EPISODE + transitions * per_transition
 
 
-def _plan(spec: CollectionSpec, dataset_id: str, workers: int, start: int) -> str:
-    """The line a collection prints before it starts (``start`` episodes already collected)."""
+def _plan(spec: CollectionSpec, dataset_id: str, workers: int, start: int, where: str | None = None) -> str:
+    """The line a collection prints before it starts (``start`` episodes already collected; ``where`` says where the
+    episodes run, ``workers`` local processes by default)."""
     remaining = spec.n_episodes - start
     transitions, seconds, size = estimate(spec, remaining, workers)
     if seconds is None:
         cost = f"at most {_size(size)} of disk ({transitions:,} transitions); a model policy's time is not estimated"
     else:
         cost = f"about {_duration(seconds)} and {_size(size)} of disk ({transitions:,} transitions)"
-    with_workers = f"with {workers} worker{'s' if workers > 1 else ''}"
+    with_workers = where or f"with {workers} worker{'s' if workers > 1 else ''}"
     if start == 0:
         return f"collecting {dataset_id}: {spec.n_episodes} episodes {with_workers}, {cost}"
     if remaining == 0:
@@ -596,6 +629,7 @@ def collect_dataset(
     overwrite: bool = False,
     progress_bar: bool = True,
     write_every: int | None = None,
+    ray_address: str | None = None,
 ) -> MinariDataset:
     """Collect ``spec.n_episodes`` episodes into the Minari dataset ``dataset_id`` and return it.
 
@@ -620,6 +654,9 @@ def collect_dataset(
         collection of another spec.
     :param progress_bar: show episodes, transitions/s and the success rate so far.
     :param write_every: episodes written to disk at a time (``WRITE_EVERY`` by default): the most a crash loses.
+    :param ray_address: run the episodes as Ray tasks of ``write_every`` episodes on the cluster at this address
+        (``auto``, ``host:port`` or ``ray://host:port``) instead of ``workers`` local processes: the same dataset,
+        written by this process (:mod:`sb3_cql.cluster`).
     """
     policy_name = spec.policy if spec.policy in POLICIES else Path(spec.policy).stem
     in_thousands = spec.n_episodes >= 1000 and spec.n_episodes % 1000 == 0
@@ -634,11 +671,17 @@ def collect_dataset(
     with files.locked():
         files.recover()
         _prepare(dataset_id, overwrite)
-        return _collect(spec, files, workers, overwrite, progress_bar, write_every)
+        return _collect(spec, files, workers, overwrite, progress_bar, write_every, ray_address)
 
 
 def _collect(
-    spec: CollectionSpec, files: DatasetFiles, workers: int, overwrite: bool, progress_bar: bool, write_every: int
+    spec: CollectionSpec,
+    files: DatasetFiles,
+    workers: int,
+    overwrite: bool,
+    progress_bar: bool,
+    write_every: int,
+    ray_address: str | None,
 ) -> MinariDataset:
     """:func:`collect_dataset` holding the dataset's lock."""
     dataset_id = files.dataset_id
@@ -650,7 +693,13 @@ def _collect(
         done, successes = _resume(files, spec, overwrite)
         held = len(done)
         missing = [index for index in range(spec.n_episodes) if index not in done]
-        print(_plan(spec, dataset_id, workers, held), file=sys.stderr, flush=True)
+        where = None
+        if ray_address is not None and missing:  # connected before anything runs: a cluster out of reach is one line
+            from sb3_cql.cluster import cluster_cpus, connect
+
+            workers = cluster_cpus(connect(ray_address))
+            where = f"as Ray tasks on the {workers} CPUs of the cluster at {ray_address}"
+        print(_plan(spec, dataset_id, workers, held, where), file=sys.stderr, flush=True)
         if missing:
             _, _, size = estimate(spec, len(missing), workers)
             _, _, total = estimate(spec, spec.n_episodes, workers)
@@ -658,7 +707,7 @@ def _collect(
         steps, begin = 0, time.perf_counter()
         with (
             _interrupts_noted() as interrupted,
-            contextlib.closing(_episodes(spec, missing, workers)) as episodes,
+            contextlib.closing(_episodes(spec, missing, workers, ray_address, write_every)) as episodes,
             tqdm(total=spec.n_episodes, initial=held, desc=dataset_id, unit="ep", disable=not progress_bar) as bar,
         ):
             for episode in episodes:

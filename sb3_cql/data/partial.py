@@ -56,19 +56,21 @@ def crash_point(name: str) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def write_atomically(path: Path, data: bytes) -> None:
+def write_atomically(path: Path, data: bytes, crash_points: bool = False) -> None:
     """Write ``data`` to ``path`` so that ``path`` is either absent (or its old content) or all of ``data``: a
-    temporary file beside it, flushed to disk, then renamed. A failed write removes the temporary file."""
+    temporary file beside it, flushed to disk, then renamed. A failed write removes the temporary file.
+    ``crash_points``: an episode file's write, with the crash points ``episodes-write`` and ``episodes-written``."""
     temporary = path.with_name(f".{path.name}.tmp")
     try:
         with open(temporary, "wb") as file:
             for start in range(0, max(len(data), 1), WRITE_BLOCK):
                 file.write(data[start : start + WRITE_BLOCK])
-                if start == 0:
+                if start == 0 and crash_points:
                     crash_point("episodes-write")
             file.flush()
             os.fsync(file.fileno())
-        crash_point("episodes-written")
+        if crash_points:
+            crash_point("episodes-written")
         os.replace(temporary, path)
     except BaseException:
         temporary.unlink(missing_ok=True)
@@ -237,7 +239,7 @@ class DatasetFiles:
         first, last = episodes[0].id, episodes[-1].id
         path = self.episodes / f"{first:06d}-{last:06d}.pkl"
         try:
-            write_atomically(path, pickle.dumps(episodes, protocol=pickle.HIGHEST_PROTOCOL))
+            write_atomically(path, pickle.dumps(episodes, protocol=pickle.HIGHEST_PROTOCOL), crash_points=True)
         except OSError as error:
             if error.errno not in NO_SPACE:
                 raise

@@ -1,0 +1,71 @@
+"""Running the package's independent units of work (collection chunks, the protocol's trainings and evaluations) on a
+Ray cluster: ``--ray ADDRESS`` of ``python -m sb3_cql.data collect`` and ``python -m sb3_cql.benchmark``.
+
+Ray is an optional extra (``pip install -e ".[ray]"``); every node of the cluster needs this package installed, as
+the machine that starts the command has it. See the documentation's *Running on a cluster* page.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+#: How to install Ray, for the line a ``--ray`` without it gives.
+INSTALL = 'pip install -e ".[ray]" (or pip install "ray>=2.60")'
+#: Tasks in flight per CPU of the cluster: enough for every CPU to find its next task while results come back.
+TASKS_PER_CPU = 2
+
+
+class ClusterError(RuntimeError):
+    """Ray is not installed, or the cluster cannot be reached."""
+
+
+def connect(address: str) -> Any:
+    """Connect this process to the Ray cluster at ``address`` (``auto``: the cluster this machine belongs to; a
+    ``ray://host:port`` client address or a ``host:port`` one otherwise) once, and return the ``ray`` module."""
+    try:
+        import ray
+    except ImportError:
+        raise ClusterError(f"--ray needs Ray, which is not installed: {INSTALL}") from None
+    if not ray.is_initialized():
+        try:
+            ray.init(address=address, logging_level="ERROR", log_to_driver=False, configure_logging=True)
+        except Exception as error:  # Ray raises ConnectionError, ValueError or its own errors
+            raise ClusterError(f"cannot connect to the Ray cluster at {address}: {' '.join(str(error).split())}") from None
+    return ray
+
+
+def cluster_cpus(ray: Any) -> int:
+    """The CPUs of the connected cluster (1 at least)."""
+    return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+
+def run_in_order(
+    function: Callable[..., Any], arguments: Iterable[tuple[Any, ...]], address: str, num_cpus: float = 1, **options: Any
+) -> Iterator[Any]:
+    """The results of ``function(*args)`` for each ``args`` of ``arguments``, in their order, each call a Ray task with
+    ``num_cpus`` CPUs on the cluster at ``address`` (retried by Ray if its node dies: ``max_retries`` in
+    ``options``). At most :data:`TASKS_PER_CPU` tasks a cluster CPU are in flight; the ones left when the caller stops
+    (or fails) are cancelled."""
+    ray = connect(address)
+    remote = ray.remote(num_cpus=num_cpus, **options)(function)
+    pending = iter(arguments)
+    limit = TASKS_PER_CPU * max(1, int(cluster_cpus(ray) // max(num_cpus, 1e-9)))
+    in_flight: deque = deque()
+    try:
+        for args in pending:
+            in_flight.append(remote.remote(*args))
+            if len(in_flight) >= limit:
+                break
+        while in_flight:
+            result = ray.get(in_flight.popleft())
+            for args in pending:  # keep the cluster busy while this result is used
+                in_flight.append(remote.remote(*args))
+                break
+            yield result
+    finally:
+        for reference in in_flight:
+            with contextlib.suppress(Exception):
+                ray.cancel(reference, force=True)
