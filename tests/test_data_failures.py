@@ -370,3 +370,25 @@ def test_minari_reads_a_resumed_dataset(minari_root):
     assert run_cli(COMMAND, minari_root).returncode == 0
     dataset = minari.load_dataset(DATASET)
     assert dataset.total_episodes == 4 and dataset.storage.metadata["success_rate"] == 1.0
+
+
+def test_a_standard_dataset_that_another_process_collects_is_waited_for_and_loaded(minari_root, capsys):
+    """Two trainings started at once on a new machine: the second waits for the first's collection."""
+    dataset_id = "sb3cql/Panda-v0/pid-1k-v0"
+    code = f"from sb3_cql.data import ensure_dataset; ensure_dataset({dataset_id!r}, n_episodes=30, workers=1)"
+    files = DatasetFiles(dataset_id)
+    env = {**os.environ, "MINARI_DATASETS_PATH": str(minari_root)}
+    first = subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: files.episodes_held() >= 1, first)
+        dataset = ensure_dataset(dataset_id, n_episodes=30, progress_bar=False)
+        assert first.wait(timeout=120) == 0
+    finally:
+        if first.poll() is None:
+            first.kill()
+        first.communicate()
+    assert f"waiting for the collection of {dataset_id} by another process (pid {first.pid}) to end" in (
+        capsys.readouterr().err
+    )
+    assert dataset.total_episodes == 30
+    assert_same_data(dataset, reference(CollectionSpec(policy="pid", n_episodes=30)))

@@ -771,7 +771,9 @@ def ensure_dataset(
     """The dataset ``dataset_id``, collected first if it is missing and its id is one of this package's standard
     ones (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0``, :func:`standard_collection`: 10,000 episodes, or N
     thousand, from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted
-    collection resumes; what a collection prints and does on Ctrl-C is :func:`collect_dataset`'s.
+    collection resumes; what a collection prints and does on Ctrl-C is :func:`collect_dataset`'s. While another
+    process collects the dataset (two trainings started at once on a new machine), this one waits for it, then loads
+    it.
 
     :param dataset_id: the Minari id.
     :param n_episodes: episodes of a collection; ``None`` for :class:`CollectionSpec`'s default.
@@ -783,7 +785,16 @@ def ensure_dataset(
         return load_dataset(dataset_id)  # an error naming the id if it is missing
     if n_episodes is not None:
         spec = dataclasses.replace(spec, n_episodes=n_episodes)
-    return collect_dataset(spec, dataset_id, workers=workers or os.cpu_count() or 1, progress_bar=progress_bar)
+    files = DatasetFiles(dataset_id)
+    if files.is_locked():
+        print(f"waiting for the collection of {dataset_id} by another process (pid {files.holder()}) to end",
+              file=sys.stderr, flush=True)  # fmt: skip
+    with files.locked(wait=True):
+        files.recover()
+        if ids.dataset_exists(dataset_id):  # the other process collected it meanwhile
+            return load_dataset(dataset_id)
+        _prepare(dataset_id, overwrite=False)
+        return _collect(spec, files, workers or os.cpu_count() or 1, False, progress_bar, WRITE_EVERY, None)
 
 
 def standard_collection(dataset_id: str) -> CollectionSpec | None:

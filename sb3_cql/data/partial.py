@@ -111,9 +111,9 @@ class DatasetFiles:
     # The lock ----------------------------------------------------------------------------------------------------
 
     @contextlib.contextmanager
-    def locked(self) -> Iterator[None]:
-        """Hold the dataset's lock while the block runs; another process holding it is one :class:`DatasetError`.
-        A folder that cannot be written is one too, before anything is done."""
+    def locked(self, wait: bool = False) -> Iterator[None]:
+        """Hold the dataset's lock while the block runs; another process holding it is one :class:`DatasetError`,
+        or with ``wait``, waited for. A folder that cannot be written is one too, before anything is done."""
         try:
             self.final.parent.mkdir(parents=True, exist_ok=True)
             descriptor = os.open(self.lock_file, os.O_RDWR | os.O_CREAT, 0o644)
@@ -123,11 +123,10 @@ class DatasetFiles:
             import fcntl
 
             try:
-                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(descriptor, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
             except BlockingIOError:
-                holder = os.pread(descriptor, 32, 0).decode(errors="replace").strip() or "?"
                 raise DatasetError(
-                    f"dataset {self.dataset_id} is being written by another process (pid {holder}, which holds "
+                    f"dataset {self.dataset_id} is being written by another process (pid {self.holder()}, which holds "
                     f"{self.lock_file}): wait for it to end, or stop it and run the command again"
                 ) from None
             os.ftruncate(descriptor, 0)
@@ -135,6 +134,13 @@ class DatasetFiles:
             yield
         finally:
             os.close(descriptor)  # lets go of the lock
+
+    def holder(self) -> str:
+        """The pid written in the lock file by the process that holds (or last held) the lock."""
+        try:
+            return self.lock_file.read_text().strip() or "?"
+        except OSError:
+            return "?"
 
     def is_locked(self) -> bool:
         """Whether another process holds the dataset's lock now."""
