@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 from collections import deque
+from concurrent.futures import Future
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -69,3 +70,52 @@ def run_in_order(
         for reference in in_flight:
             with contextlib.suppress(Exception):
                 ray.cancel(reference, force=True)
+
+
+class RayExecutor:
+    """A ``concurrent.futures`` executor whose calls are Ray tasks on the cluster at ``address``, each with
+    ``num_cpus`` CPUs, the environment variables ``env_vars`` and Ray's retries of a task whose worker or node died
+    (``max_retries``): ``submit`` returns the task's ``Future``, and the exception of a failed call is the function's
+    own (not Ray's wrapper). Leaving the ``with`` block cancels the tasks still running.
+
+    :param address: the cluster (``auto``, ``host:port`` or ``ray://host:port``).
+    :param num_cpus: CPUs of each task (its torch threads).
+    :param env_vars: environment variables the tasks see (the nodes' own environment otherwise).
+    :param max_retries: runs of a task again after its worker process or node died.
+    """
+
+    def __init__(self, address: str, num_cpus: float = 1, env_vars: dict[str, str] | None = None, max_retries: int = 3):
+        self.ray = connect(address)
+        self.options: dict[str, Any] = {"num_cpus": num_cpus, "max_retries": max_retries}
+        if env_vars:
+            self.options["runtime_env"] = {"env_vars": dict(env_vars)}
+        self._references: list[Any] = []
+
+    @property
+    def cpus(self) -> int:
+        """The cluster's CPUs."""
+        return cluster_cpus(self.ray)
+
+    def submit(self, function: Callable[..., Any], *args: Any) -> Future:
+        reference = self.ray.remote(**self.options)(function).remote(*args)
+        self._references.append(reference)
+        future: Future = Future()
+        reference.future().add_done_callback(lambda done: _settle(future, done))
+        return future
+
+    def __enter__(self) -> RayExecutor:
+        return self
+
+    def __exit__(self, *exc_info: Any) -> None:
+        for reference in self._references:
+            with contextlib.suppress(Exception):
+                self.ray.cancel(reference, force=True)
+
+
+def _settle(future: Future, done: Future) -> None:
+    """Give ``future`` the result of Ray's ``done``, or the exception its task raised (Ray wraps it: its ``cause``)."""
+    error = done.exception()
+    if error is None:
+        future.set_result(done.result())
+    else:
+        future.set_exception(getattr(error, "cause", None) or error)
