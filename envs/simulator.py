@@ -64,6 +64,13 @@ with silenced(1, 2):  # pybullet build time: ... (on stderr with PyBullet 3.2.7)
     from pybullet_utils.bullet_client import BulletClient
 
 
+class _BulletClient(BulletClient):
+    """PyBullet's client, whose finaliser also takes one that Ctrl-C cut short while it connected: it has no id yet
+    (``-1``, PyBullet's for none), where ``BulletClient.__del__`` would print a traceback as the program ends."""
+
+    _client = -1
+
+
 class Simulator:
     """One PyBullet world: a :class:`BulletClient` (DIRECT unless ``render_mode == "human"``), its time
     step and the camera.
@@ -86,7 +93,7 @@ class Simulator:
         self.render_mode = render_mode
         mode = pybullet.GUI if render_mode == "human" else pybullet.DIRECT
         with silenced(1):  # argv[0]= (on stdout); in GUI mode, also the OpenGL details PyBullet prints
-            self.client = BulletClient(connection_mode=mode)
+            self.client = _BulletClient(connection_mode=mode)
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
         if render_mode == "human":
             self.client.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)

@@ -24,6 +24,8 @@ between the hand's closing direction and the cylinder's axis (90: across it, the
 each closing, ``envs.pd_controller.closing_angles``. ``--output`` writes every episode's seed, success and closing
 angles to a JSON file, rewritten atomically after each task.
 A model that is missing, unreadable or not made for the tasks is reported in one line, with exit status 2.
+Ctrl-C (or SIGTERM) ends the evaluation on one line saying what ``--output`` holds (the tasks finished before it),
+with status 130 (143), also while the command starts.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import dataclasses
 import inspect
 import itertools
 import re
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -49,7 +52,10 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import envs
 from envs.pd_controller import closing_angles
 from envs.robot import ACTION_MODES
+from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
 
+#: The command's name in its messages.
+PROG = "python -m sb3_cql.evaluate"
 #: The action mode of an env made without ``action_mode``.
 DEFAULT_ACTION_MODE = inspect.signature(envs.PandaGraspEnv).parameters["action_mode"].default
 
@@ -339,9 +345,7 @@ def load_model(parser: argparse.ArgumentParser, path: str, algo: str, env_id: st
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m sb3_cql.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", help=f"path of a saved SB3 model, or a PD controller: {', '.join(envs.CONTROLLERS)}")
     parser.add_argument("--algo", default=None, help="RL-Zoo3 name of the model's algorithm (cql, sac, ...)")
     parser.add_argument("--env", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
@@ -372,6 +376,19 @@ def main(argv: list[str] | None = None) -> None:
     n_episodes = len(seeds) if seeds is not None else 100 if args.n_episodes is None else args.n_episodes
     if n_episodes < 1:
         parser.error(f"-n needs at least 1 episode, got {n_episodes}")
+    written: list[str] = []  # the tasks --output holds
+    try:
+        _evaluate(parser, args, seeds, n_episodes, written)
+    except KeyboardInterrupt as interrupt:
+        kept = f"{args.output} holds the tasks finished before ({', '.join(written)})" if written else "nothing written"
+        print(f"interrupted: {kept}", file=sys.stderr)
+        raise SystemExit(exit_status(interrupt)) from None
+
+
+def _evaluate(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, seeds: list[int] | None, n_episodes: int, written: list[str]
+) -> None:
+    """The evaluation :func:`main` asks for, task by task, each task appended to ``written`` once ``--output`` holds it."""
     episodes = f"seed {args.seed}" if seeds is None else f"seeds {format_seeds(seeds)}"
     if args.model in envs.CONTROLLERS:
         model, env_kwargs = None, {env_id: args.env_kwargs for env_id in args.env}
@@ -403,15 +420,22 @@ def main(argv: list[str] | None = None) -> None:
                 "action_mode": action_mode,
                 "episodes": [dataclasses.asdict(outcome) for outcome in outcomes],
             }
-        print(f"{env_id}: success rate {rate:.3f} over {n_episodes} episodes ({episodes}, {action_mode} actions)")
-        if args.alignment:
-            print(f"{env_id}: {alignment_summary(outcomes)}")
         if args.output is not None:
             from sb3_cql.benchmark.records import write_json
 
             record = {"model": args.model, "algo": args.algo, "deterministic": not args.stochastic, "tasks": tasks}
             write_json(args.output, record)  # after each task: a killed evaluation keeps the tasks it finished
+            written.append(env_id)
+        # Printed once recorded: a task whose line is out is in --output.
+        print(f"{env_id}: success rate {rate:.3f} over {n_episodes} episodes ({episodes}, {action_mode} actions)", flush=True)
+        if args.alignment:
+            print(f"{env_id}: {alignment_summary(outcomes)}", flush=True)
 
 
 if __name__ == "__main__":
-    main()
+    started()  # the package quieted Ctrl-C during the start-up imports (sb3_cql.interrupts); main says what it kept
+    terminate_as_interrupt()
+    try:
+        main()
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C prints no traceback either

@@ -74,7 +74,7 @@ def test_the_actor_and_the_critics_work_on_chunks_while_the_model_keeps_the_envs
         CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=3, n_steps=2)
     with pytest.raises(ValueError, match="cql_calibrated is not supported with action_chunk"):
         CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=3, cql_calibrated=True)
-    with pytest.raises(ValueError, match="action_chunk must be >= 1"):
+    with pytest.raises(ValueError, match="action_chunk must be an integer >= 1, got 0"):
         BC("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=0)
 
 

@@ -7,6 +7,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import configure
 
 from sb3_cql import BC, CQL
+from sb3_cql.common import SettingError
 
 TINY = {"net_arch": [64, 64]}
 
@@ -69,3 +70,9 @@ def test_a_loaded_model_trains_on_its_dataset_again(tmp_path, monkeypatch, algo)
     assert loaded.replay_buffer.buffer_size == 1 and loaded.dataset == "sb3cql/Panda-v0/pid-v0"
     loaded.learn(5, reset_num_timesteps=False)  # as the zoo's --trained-agent continues a run
     assert loaded.replay_buffer.size() == dataset.total_steps and loaded.num_timesteps == 10
+
+
+@pytest.mark.parametrize("batch_size", [0, -5])
+def test_a_batch_size_below_one_is_refused(batch_size):
+    with pytest.raises(SettingError, match=f"^batch_size must be an integer >= 1, got {batch_size}$"):
+        BC("MlpPolicy", "Pendulum-v1", dataset=expert_pendulum_buffer(64), batch_size=batch_size, policy_kwargs=TINY)

@@ -3,6 +3,8 @@
 import contextlib
 import json
 import os
+import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -11,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from startup import interrupt_while_starting
 
 from sb3_cql.benchmark.runs import Run, model_timesteps
 
@@ -183,11 +186,16 @@ def test_dataset_option_sets_the_offline_algorithms_dataset_only(tmp_path):
 
 
 def test_a_failing_zoo_run_shows_its_log(bench):
-    result = bench.run("--algos", "cql", "--tasks", "Panda-v0", "--n-timesteps", "10", "--results-dir", "failing",
+    result = bench.run("--algos", "cql", "--tasks", "Panda-v0", "--n-timesteps", "10", "--results-dir", "failing run",
                        "--zoo-args", "--hyperparams no_such_argument:1", "--no-filmstrips", check=False)  # fmt: skip
     assert result.returncode != 0
     assert "[train cql seed 117] FAILED" in result.stdout
     assert "the zoo failed (exit 1)" in result.stderr and "no_such_argument" in result.stderr
+    # The log names the zoo command quoted for the shell: a results folder with a space is one word.
+    (logged,) = re.findall(r"^=== .* segment Panda-v0_1: (.+)$", (bench.root / "failing run" / "runs" / "seed117" /
+                                                                  "cql.log").read_text(), re.MULTILINE)  # fmt: skip
+    command = shlex.split(logged)
+    assert command[command.index("-f") + 1] == str(bench.root / "failing run" / "runs" / "seed117")
 
 
 def test_a_killed_training_resumes_from_its_checkpoint(bench):
@@ -198,7 +206,7 @@ def test_a_killed_training_resumes_from_its_checkpoint(bench):
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     try:
         deadline = time.monotonic() + 600
-        # Complete, not just begun: SB3 writes a checkpoint in place, and one killed mid-write is rightly not resumed.
+        # Complete: a checkpoint appears whole (written beside its name, then renamed), and the wait reads it back.
         while model_timesteps(first / "rl_model_100_steps.zip") is None:
             assert process.poll() is None and time.monotonic() < deadline, "no checkpoint before the end"
             time.sleep(0.2)
@@ -278,7 +286,8 @@ def test_an_algorithms_confidence_interval_depends_on_its_own_scores_alone():
 
 
 def test_a_checkpoint_cut_short_by_a_kill_is_not_resumed(tmp_path):
-    """SB3 writes a checkpoint in place: a kill mid-write leaves a truncated zip, which must count as absent."""
+    """A truncated checkpoint (a copy cut short, or one SB3 wrote in place outside the zoo's runs and a kill cut
+    short) must count as absent."""
     import yaml
     from stable_baselines3 import SAC
 
@@ -351,3 +360,33 @@ def test_fine_tuning_is_a_stage_of_its_own_rows_after_the_offline_training(bench
     assert "| CQL + online on PandaForce-v0 |" in table and "Fine-tuning runs" in table
     assert (results / "figures" / "finetune_PandaForce-v0.png").is_file()
     assert "units: 0 done" in bench.run(*args).stdout  # recorded: skipped the second time
+
+
+def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path):
+    status, stderr = interrupt_while_starting(Bench(tmp_path).command("--algos", "pid", "--results-dir", "started"),
+                                              cwd=tmp_path)  # fmt: skip
+    assert status == 130
+    assert stderr.splitlines() == ["python -m sb3_cql.benchmark: interrupted while starting: nothing done"]
+    assert not (tmp_path / "started").exists()
+
+
+def test_ctrl_c_during_the_protocol_ends_it_at_once_on_one_line_keeping_the_units_recorded(tmp_path):
+    bench = Bench(tmp_path)
+    args = ["--algos", "pid", "--seeds", "117", "--tasks", "Panda-v0", "PandaForce-v0", "--episodes", "30",
+            "--results-dir", "interrupted", "--no-filmstrips"]  # fmt: skip
+    process = subprocess.Popen(bench.command(*args), cwd=tmp_path, env=bench.env, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    try:
+        # The first evaluation is recorded; the second (30 episodes in a worker process) is under way.
+        assert any(line.startswith("[eval pid seed 117 Panda-v0] success rate") for line in iter(process.stdout.readline, ""))
+        os.killpg(process.pid, signal.SIGINT)  # the runner and its worker, as a terminal's Ctrl-C
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+    results = (tmp_path / "interrupted").resolve()
+    assert process.returncode == 130 and "Traceback" not in stderr
+    assert stderr.splitlines() == [
+        f"interrupted: the units done are recorded in {results}; the same command continues with the others"
+    ]
+    assert [path.name for path in (results / "records" / "eval").iterdir()] == ["pid-seed117-Panda-v0.json"]

@@ -1,4 +1,9 @@
-"""CQL: offline training through SB3's API, the conservative property, save/load, bad input."""
+"""CQL: offline training through SB3's API, the conservative property, save/load (whole or not at all), bad input."""
+
+import io
+import re
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -12,9 +17,10 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.logger import Logger, configure
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.save_util import load_from_pkl
 
-from sb3_cql import CQL
-from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql import BC, CQL
+from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer, SettingError
 from sb3_cql.common.allocator import retain_freed_memory
 from sb3_cql.cql import NormalizedFlatten
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
@@ -121,7 +127,7 @@ def test_too_little_data_is_rejected():
 
 def test_divergence_stops_with_the_step():
     buffer = random_pendulum_buffer(100)
-    buffer.rewards[50] = np.inf
+    buffer.rewards[50] = 3e38  # finite, but its square is not
     model = CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=100, policy_kwargs=TINY)
     with pytest.raises(FloatingPointError, match="gradient step 1") as error:
         model.learn(5)
@@ -399,8 +405,134 @@ def test_actor_bc_weight_holds_the_actor_near_the_data_after_the_warm_start():
 @pytest.mark.parametrize("options", [{"cql_n_actions": 0}, {"cql_temperature": 0.0}, {"cql_alpha": -1.0},
                                      {"actor_bc_weight": -1.0}, {"actor_bc_weight": float("nan")}])  # fmt: skip
 def test_invalid_cql_settings_are_rejected(options):
-    with pytest.raises(ValueError, match=next(iter(options))):
+    with pytest.raises(SettingError, match=next(iter(options))):
         CQL("MlpPolicy", "Pendulum-v1", **options)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"gamma": 1.5}, "gamma must be in (0, 1], got 1.5"),
+        ({"gamma": -1}, "gamma must be in (0, 1], got -1"),
+        ({"gamma": 0.0}, "gamma must be in (0, 1], got 0.0"),
+        ({"tau": 2}, "tau must be in (0, 1], got 2"),
+        ({"bc_steps": -3}, "bc_steps must be an integer >= 0, got -3"),
+        ({"batch_size": 0}, "batch_size must be an integer >= 1, got 0"),
+        ({"batch_size": -5}, "batch_size must be an integer >= 1, got -5"),
+        ({"batch_size": 2.5}, "batch_size must be an integer >= 1, got 2.5"),
+        ({"learning_starts": -1}, "learning_starts must be an integer >= 0, got -1"),
+        ({"gradient_steps": -3}, "gradient_steps must be an integer >= 0, or -1 (as many as the env steps), got -3"),
+        ({"train_freq": (0, "step")}, "train_freq must be an integer >= 1, got 0"),
+        ({"target_update_interval": 0}, "target_update_interval must be an integer >= 1, got 0"),
+        ({"n_steps": 0}, "n_steps must be an integer >= 1, got 0"),
+        ({"online_buffer_size": 0}, "online_buffer_size must be an integer >= 1, got 0"),
+        ({"cql_temperature": -1.0}, "cql_temperature must be a number > 0, got -1.0"),
+        ({"bc_learning_rate": 0.0}, "bc_learning_rate must be a number > 0, got 0.0"),
+    ],
+)
+def test_settings_sb3_would_train_with_are_refused_naming_the_keyword_and_value(options, message):
+    with pytest.raises(SettingError, match=f"^{re.escape(message)}$"):
+        CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(64), policy_kwargs=TINY, **options)
+
+
+def test_settings_given_to_load_are_checked_and_sb3s_gradient_steps_minus_one_is_kept(tmp_path):
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(64), gradient_steps=-1, policy_kwargs=TINY)
+    model.save(tmp_path / "cql")
+    assert CQL.load(tmp_path / "cql", gradient_steps=-1).gradient_steps == -1
+    with pytest.raises(SettingError, match=re.escape("gamma must be in (0, 1], got 1.5")):
+        CQL.load(tmp_path / "cql", gamma=1.5)  # as the zoo's -i with --hyperparams gamma:1.5 fine-tunes
+
+
+@pytest.mark.parametrize("algorithm", [CQL, BC])
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("rewards", np.inf, "the replay buffer's rewards hold inf at index 7"),
+        ("observations", np.nan, "the replay buffer's observations hold nan at index 7"),
+        ("next_observations", -np.inf, "the replay buffer's next_observations hold -inf at index 7"),
+        ("actions", np.nan, "the replay buffer's actions hold nan at index 7"),
+    ],
+)
+def test_a_replay_buffer_with_a_non_finite_value_is_refused_naming_the_field_and_index(algorithm, field, value, message):
+    buffer = random_pendulum_buffer(64)
+    getattr(buffer, field)[7, 0] = value
+    getattr(buffer, field)[9, 0] = value
+    with pytest.raises(SettingError, match=f"^dataset: {re.escape(message)}: every value must be finite$"):
+        algorithm("MlpPolicy", "Pendulum-v1", dataset=buffer, policy_kwargs=TINY)
+
+
+def test_saves_keep_sb3s_paths_and_leave_no_temporary_file(tmp_path):
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_pendulum_buffer(64), batch_size=16, policy_kwargs=TINY)
+    model.save(tmp_path / "new folder" / "model")  # SB3 adds .zip, and makes the folder
+    model.save(str(tmp_path / "model.v2"))  # a suffix is kept
+    model.save_replay_buffer(tmp_path / "buffer")  # .pkl
+    file = io.BytesIO()
+    model.save(file)  # a file object is written as SB3 writes it
+    assert sorted(path.name for path in tmp_path.rglob("*")) == ["buffer.pkl", "model.v2", "model.zip", "new folder"]
+    assert CQL.load(tmp_path / "new folder" / "model.zip").num_timesteps == 0 and CQL.load(io.BytesIO(file.getvalue()))
+    assert load_from_pkl(tmp_path / "buffer.pkl").size() == 64
+
+
+#: Saves a tiny CQL's model (``save``) or replay buffer (``save_replay_buffer``), ``sys.argv[1]``, to ``sys.argv[2]``:
+#: with ``sys.argv[3] == "existing"`` whole first, then with the write of SB3's file cut short: half the file written,
+#: the process waits (on stdin) to be killed.
+CUT_SHORT_SAVE = """
+import io, sys
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common import base_class, off_policy_algorithm, save_util
+from stable_baselines3.common.buffers import ReplayBuffer
+from sb3_cql import CQL
+
+method, path, before = sys.argv[1:]
+env = gym.make("Pendulum-v1")
+buffer = ReplayBuffer(64, env.observation_space, env.action_space)
+for _ in range(64):
+    observation = env.observation_space.sample()
+    buffer.add(observation, observation, env.action_space.sample() / 2, np.zeros(1), np.zeros(1), [{}])
+model = CQL("MlpPolicy", env, dataset=buffer, batch_size=16, policy_kwargs={"net_arch": [8]}, device="cpu")
+if before == "existing":
+    getattr(model, method)(path)
+saving = {"save": (base_class, "save_to_zip_file", "zip"), "save_replay_buffer": (off_policy_algorithm, "save_to_pkl", "pkl")}
+module, name, suffix = saving[method]
+whole_save = getattr(module, name)
+
+def cut_short(target, *args, **kwargs):
+    whole = io.BytesIO()
+    whole_save(whole, *args, **kwargs)
+    with save_util.open_path(target, "w", suffix=suffix) as file:
+        file.write(whole.getvalue()[: len(whole.getvalue()) // 2])
+        file.flush()
+    print("half written", flush=True)
+    sys.stdin.read()
+
+setattr(module, name, cut_short)
+model.num_timesteps = 7
+getattr(model, method)(path)
+"""
+
+
+@pytest.mark.parametrize("method", ["save", "save_replay_buffer"])
+@pytest.mark.parametrize("before", ["absent", "existing"])
+def test_a_save_killed_mid_write_leaves_the_previous_file_or_none(tmp_path, method, before):
+    path = tmp_path / ("model.zip" if method == "save" else "buffer.pkl")
+    child = subprocess.Popen([sys.executable, "-c", CUT_SHORT_SAVE, method, str(path), before], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert "half written\n" in iter(child.stdout.readline, ""), "the save never began"
+    finally:
+        child.kill()  # SIGKILL, mid-write
+        child.wait()
+    hidden = [entry for entry in tmp_path.iterdir() if entry.name.startswith(".")]
+    assert [entry.stat().st_size > 0 for entry in hidden] == [True]  # the half-written file, under a name of its own
+    assert sorted(entry.name for entry in tmp_path.iterdir() if not entry.name.startswith(".")) == (
+        [] if before == "absent" else [path.name]
+    )
+    if before == "existing":  # the file saved before, whole
+        if method == "save":
+            assert CQL.load(path).num_timesteps == 0
+        else:
+            assert load_from_pkl(path).size() == 64
 
 
 def test_critics_learn_the_scaled_and_shifted_reward():

@@ -1,6 +1,8 @@
 """python -m sb3_cql.evaluate: the action mode read from the model, per-episode seeds, and bad input as one-line errors."""
 
 import json
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -10,6 +12,7 @@ import numpy as np
 import pytest
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
+from startup import interrupt_while_starting
 
 from sb3_cql import BC
 from sb3_cql.evaluate import env_kwargs_for, episode_successes, format_seeds, load_policy, main, parse_seeds, success_rate
@@ -251,3 +254,36 @@ def test_the_command_reports_a_wrong_action_mode_without_a_traceback(models):
     lines = [line for line in finished.stderr.splitlines() if not line.startswith("pybullet build time")]  # its banner
     assert len(lines) == 1 and lines[0].startswith(ERROR + str(models["bc_delta"]) + ": the model's action space")
     assert "Traceback" not in finished.stderr and finished.stdout.count("success rate") == 0
+
+
+def start_command(*args: str) -> subprocess.Popen:
+    """``python -m sb3_cql.evaluate ARGS`` as a real process, in a process group of its own (as a shell runs it)."""
+    return subprocess.Popen([sys.executable, "-m", "sb3_cql.evaluate", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+
+
+def stderr_lines(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if not line.startswith("pybullet build time")]  # its banner
+
+
+def test_ctrl_c_while_the_command_starts_is_one_line():
+    status, stderr = interrupt_while_starting([sys.executable, "-m", "sb3_cql.evaluate", "pid", "--env", "Panda-v0"])
+    assert status == 130
+    assert stderr_lines(stderr) == ["python -m sb3_cql.evaluate: interrupted while starting: nothing done"]
+
+
+@pytest.mark.parametrize(("signum", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_during_an_evaluation_says_in_one_line_what_its_output_holds(tmp_path, signum, status):
+    output = tmp_path / "out folder" / "episodes.json"
+    process = start_command("pid", "--env", "Panda-v0", "PandaForce-v0", "--seeds", "0-29", "--output", str(output))
+    try:
+        # A task's line is printed once --output holds it; the second task's 30 episodes are then under way.
+        assert any(line.startswith("Panda-v0: success rate") for line in iter(process.stdout.readline, ""))
+        os.killpg(process.pid, signum)  # as a terminal's Ctrl-C reaches the whole process group
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == status and "Traceback" not in stderr
+    assert stderr_lines(stderr) == [f"interrupted: {output} holds the tasks finished before (Panda-v0)"]
+    assert list(json.loads(output.read_text())["tasks"]) == ["Panda-v0"]

@@ -1,6 +1,8 @@
 """RL-Zoo3 integration, through the zoo's own command lines in fresh interpreters, as users run them."""
 
 import os
+import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -15,6 +17,9 @@ import pytest
 import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from sb3_cql.common.atomic import saved_model_problem
+from sb3_cql.zoo import plugin
+
 # Tiny networks and batches: the point is the plumbing, not the learning.
 TINY = ["--hyperparams", "batch_size:64", "policy_kwargs:dict(net_arch=[32, 32])"]
 
@@ -27,10 +32,13 @@ class Zoo:
         self.env = {**os.environ, "MINARI_DATASETS_PATH": str(root / "datasets"), "MPLBACKEND": "Agg"}
 
     def run(self, *args: str, module: str | None = "rl_zoo3.train", timeout: float = 600) -> str:
-        command = [sys.executable, "-m", module, *args] if module else list(args)
-        result = subprocess.run(command, cwd=self.root, env=self.env, capture_output=True, text=True, timeout=timeout)
-        assert result.returncode == 0, f"{' '.join(command)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+        result = self.attempt(*args, module=module, timeout=timeout)
+        assert result.returncode == 0, f"{result.args} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
         return result.stdout
+
+    def attempt(self, *args: str, module: str | None = "rl_zoo3.train", timeout: float = 600) -> subprocess.CompletedProcess:
+        command = [sys.executable, "-m", module, *args] if module else list(args)
+        return subprocess.run(command, cwd=self.root, env=self.env, capture_output=True, text=True, timeout=timeout)
 
     def python(self, code: str) -> str:
         return self.run(sys.executable, "-c", code, module=None).strip().splitlines()[-1]
@@ -414,3 +422,169 @@ def test_pid_regrasp_names_the_regrasping_pd_controller():
 
     assert load_policy("pid-regrasp", None, "PandaForce-v0").regrasp
     assert not load_policy("pid", None, "PandaForce-v0").regrasp
+
+
+def test_the_commands_printed_at_the_end_are_quoted_for_the_shell(tmp_path):
+    run = tmp_path / "my logs" / "cql" / "Panda-v0_3"
+    run.mkdir(parents=True)
+    (run / "best_model.zip").touch()
+    evaluate, record = (shlex.split(line.split(": ", 1)[1]) for line in plugin._run_commands("cql", "Panda-v0", run))
+    assert evaluate == ["python", "-m", "sb3_cql.evaluate", str(run / "best_model.zip"), "--algo", "cql", "-n", "100"]
+    assert record == ["python", "-m", "rl_zoo3.record_video", "--algo", "cql", "--env", "Panda-v0", "-f",
+                      str(tmp_path / "my logs"), "--exp-id", "3", "--load-best", "-n", "700"]  # fmt: skip
+
+
+#: ``python -m rl_zoo3.train`` with ``sys.argv[3:]``, which waits once it has numbered its run (``__init__``) until
+#: ``sys.argv[2]`` runs have, each leaving a file in the folder ``sys.argv[1]``: all of them then make their run
+#: folders at the same moment.
+TOGETHER = """
+import os, sys, time
+from pathlib import Path
+from rl_zoo3 import train
+from rl_zoo3.exp_manager import ExperimentManager
+
+barrier, runs = Path(sys.argv[1]), int(sys.argv[2])
+setup_experiment = ExperimentManager.setup_experiment
+
+def together(self):
+    (barrier / str(os.getpid())).touch()
+    while len(list(barrier.iterdir())) < runs:
+        time.sleep(0.01)
+    return setup_experiment(self)
+
+ExperimentManager.setup_experiment = together
+sys.argv = ["train", *sys.argv[3:]]
+train.train()
+"""
+
+
+@pytest.mark.parametrize("algo", ["bc", "sac"])
+def test_runs_started_together_take_a_folder_each_and_say_where_their_own_models_are(zoo, algo):
+    barrier = zoo.root / f"numbered-{algo}"
+    barrier.mkdir()
+    args = ["--algo", algo, "--env", "Panda-v0", "-n", "20", "--eval-freq", "-1", "-f", "two runs", *TINY,
+            "buffer_size:10000"]  # fmt: skip
+    runs = [subprocess.Popen([sys.executable, "-c", TOGETHER, str(barrier), "2", *args], cwd=zoo.root, env=zoo.env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]  # fmt: skip
+    outputs = [run.communicate(timeout=600) for run in runs]
+    assert [run.returncode for run in runs] == [0, 0], [stderr[-3000:] for _, stderr in outputs]
+    folders = [f"two runs/{algo}/Panda-v0_1", f"two runs/{algo}/Panda-v0_2"]
+    assert sorted(str(path.relative_to(zoo.root)) for path in (zoo.root / "two runs" / algo).iterdir()) == folders
+    saved = [re.findall(r"^Saving to (.+)$", stdout, re.MULTILINE) for stdout, _ in outputs]
+    assert sorted(saved) == [[folder] for folder in folders]  # each run its own folder
+    for folder in folders:
+        assert saved_model_problem(zoo.root / folder / "Panda-v0.zip") is None
+        config = yaml.unsafe_load((zoo.root / folder / "Panda-v0" / "config.yml").read_text())
+        assert config["buffer_size"] == 10000 and (zoo.root / folder / "0.monitor.csv").is_file()
+    if algo == "bc":  # ours: the commands printed at the end use the run's own folder, quoted for the shell
+        for (stdout, _), (folder,) in zip(outputs, saved, strict=True):
+            lines = dict(line.split(": ", 1) for line in stdout.splitlines()[-2:])
+            evaluate, record = (shlex.split(lines[name]) for name in ("evaluate on the three tasks", "record a video"))
+            assert evaluate[3] == f"{folder}/Panda-v0.zip"
+            assert record[record.index("-f") + 1 :][:3] == ["two runs", "--exp-id", folder[-1]]
+
+
+#: ``python -m rl_zoo3.train`` with ``sys.argv[1:]``, whose save of the checkpoint of step 20 writes half its file
+#: (SB3's own writer, into the file SB3 would write) and waits (on stdin) to be killed.
+CUT_SHORT_CHECKPOINT = """
+import io, sys
+from stable_baselines3.common import base_class, save_util
+from rl_zoo3 import train
+
+whole_save = base_class.save_to_zip_file
+
+def cut_short(path, *args, **kwargs):
+    if "rl_model_20_steps" not in str(path):
+        return whole_save(path, *args, **kwargs)
+    whole = io.BytesIO()
+    whole_save(whole, *args, **kwargs)
+    with save_util.open_path(path, "w", suffix="zip") as file:
+        file.write(whole.getvalue()[: len(whole.getvalue()) // 2])
+        file.flush()
+    print("half written", flush=True)
+    sys.stdin.read()
+
+base_class.save_to_zip_file = cut_short
+sys.argv = ["train", *sys.argv[1:]]
+train.train()
+"""
+
+
+def test_a_kill_during_a_checkpoint_save_of_sb3s_sac_leaves_every_checkpoint_whole(zoo):
+    args = ["--algo", "sac", "--env", "Panda-v0", "-n", "40", "--save-freq", "10", "--eval-freq", "-1", "-f", "killed",
+            *TINY, "buffer_size:10000"]  # fmt: skip
+    run = subprocess.Popen([sys.executable, "-c", CUT_SHORT_CHECKPOINT, *args], cwd=zoo.root, env=zoo.env,
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)  # fmt: skip
+    try:
+        assert "half written\n" in iter(run.stdout.readline, ""), "the checkpoint of step 20 was never saved"
+    finally:
+        run.kill()  # SIGKILL, mid-write
+        run.wait()
+    folder = zoo.root / "killed" / "sac" / "Panda-v0_1"
+    assert sorted(path.name for path in folder.glob("*.zip")) == ["rl_model_10_steps.zip"]
+    assert saved_model_problem(folder / "rl_model_10_steps.zip") is None
+    (partial,) = folder.glob(".rl_model_20_steps.zip.*.tmp")  # what the kill cut short, under a name of its own
+    assert partial.stat().st_size > 0
+
+
+@pytest.fixture(scope="module")
+def checkpoints(zoo) -> Path:
+    """A BC run with checkpoints at steps 10, 20, 30, and a damaged one of step 35 beside them."""
+    zoo.run("--algo", "bc", "--env", "Panda-v0", "-n", "30", "--save-freq", "10", "--eval-freq", "-1", "-f",
+            "checkpointed", *TINY)  # fmt: skip
+    folder = Path("checkpointed", "bc", "Panda-v0_1")
+    whole = (zoo.root / folder / "rl_model_30_steps.zip").read_bytes()
+    (zoo.root / folder / "rl_model_35_steps.zip").write_bytes(whole[: len(whole) // 2])
+    return folder
+
+
+def ended_on_one_line(result: subprocess.CompletedProcess) -> str:
+    """The one error line of a zoo run that ended with status 2, without a traceback."""
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    errors = [line for line in result.stderr.splitlines() if line.startswith("python -m rl_zoo3.train: error: ")]
+    assert len(errors) == 1 and result.stderr.strip().splitlines()[-1] == errors[0], result.stderr[-3000:]
+    return errors[0].removeprefix("python -m rl_zoo3.train: error: ")
+
+
+@pytest.mark.parametrize(("damage", "problem"), [("empty", "it is empty (0 bytes)"),
+                                                 ("truncated", "it is truncated (not a whole zip archive)")])  # fmt: skip
+def test_a_damaged_i_checkpoint_ends_the_run_on_one_line_naming_the_last_good_one(zoo, checkpoints, damage, problem):
+    damaged = checkpoints / "rl_model_40_steps.zip"
+    whole = (zoo.root / checkpoints / "rl_model_30_steps.zip").read_bytes()
+    (zoo.root / damaged).write_bytes(b"" if damage == "empty" else whole[:1000])
+    result = zoo.attempt("--algo", "bc", "--env", "Panda-v0", "-n", "10", "--eval-freq", "-1", "-f", f"resumed-{damage}",
+                         "-i", str(damaged), *TINY)  # fmt: skip
+    good = checkpoints / "rl_model_30_steps.zip"  # the newest that opens (35 is damaged too)
+    assert ended_on_one_line(result) == f"{damaged} cannot be loaded: {problem}; the last good checkpoint beside it is {good}"
+    assert not list((zoo.root / f"resumed-{damage}").rglob("Panda-v0_*"))
+
+
+@pytest.mark.parametrize(
+    ("algo", "setting", "message"),
+    [
+        ("cql", "gamma:1.5", "gamma must be in (0, 1], got 1.5"),
+        ("cql", "bc_steps:-3", "bc_steps must be an integer >= 0, got -3"),
+        ("bc", "batch_size:0", "batch_size must be an integer >= 1, got 0"),
+        ("cql", "dataset:'sb3cql/Panda-v0/none-v0'", "dataset sb3cql/Panda-v0/none-v0 "),
+    ],
+)
+def test_a_bad_setting_or_dataset_ends_the_run_on_one_line_and_leaves_no_run_folder(zoo, algo, setting, message):
+    result = zoo.attempt("--algo", algo, "--env", "Panda-v0", "-n", "10", "--eval-freq", "-1", "-f", "refused", *TINY,
+                         setting)  # fmt: skip
+    assert message in ended_on_one_line(result)
+    assert not list((zoo.root / "refused").rglob("Panda-v0_*"))
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("gamma:1.5", "gamma must be in (0, 1], got 1.5"),  # given to SB3's load
+        ("dataset:'sb3cql/Panda-v0/none-v0'", "dataset sb3cql/Panda-v0/none-v0 "),  # loaded when training starts
+    ],
+)
+def test_a_fine_tuning_with_a_bad_setting_or_dataset_ends_on_one_line_and_leaves_no_run_folder(zoo, trained, setting, message):
+    finetune = ["--algo", "cql", "--env", "PandaForce-v0", "--conf-file", "cql_finetune.yml", "-f", "refused-ft"]
+    result = zoo.attempt(*finetune, "-i", str(trained / "Panda-v0.zip"), "-n", "10", "--eval-freq", "-1",
+                         "--hyperparams", setting)  # fmt: skip
+    assert message in ended_on_one_line(result)
+    assert not list((zoo.root / "refused-ft").rglob("PandaForce-v0_*"))

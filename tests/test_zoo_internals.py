@@ -3,6 +3,8 @@ installed versions in seconds, without training: a zoo upgrade that changes one 
 
 import argparse
 import inspect
+import os
+import re
 import runpy
 import sys
 from pathlib import Path
@@ -15,7 +17,7 @@ import yaml
 from rl_zoo3 import exp_manager, hyperparams_opt, train, utils
 from rl_zoo3.exp_manager import ExperimentManager
 from stable_baselines3 import SAC
-from stable_baselines3.common.callbacks import CheckpointCallback
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_cql.zoo import plugin
@@ -110,6 +112,7 @@ def test_a_zoo_without_a_wrapped_method_or_parameter_is_left_alone_with_a_warnin
         "ExperimentManager.__init__ has no parameter 'eval_env_kwargs'",
         "no ExperimentManager.read_hyperparameters",
         "no ExperimentManager.setup_experiment",
+        "no ExperimentManager.create_log_folder",
         "no ExperimentManager.create_envs",
         "no ExperimentManager.learn",
         "no ExperimentManager.save_trained_model",
@@ -315,7 +318,7 @@ def test_the_zoo_loads_the_replay_buffer_beside_an_i_model_and_the_plugin_then_l
 
 @checks("ExperimentManager.setup_experiment loads -i with the env of create_envs(eval_env=False)")
 def test_the_zoo_loads_an_i_model_with_its_training_env(monkeypatch, tmp_path):
-    (tmp_path / "model.zip").write_bytes(b"")
+    tiny_sac(tmp_path / "model")  # a model that opens: the plugin refuses a damaged one first
     manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN, "-i", "model.zip", "--eval-freq", "100")
     events, model = [], object()
 
@@ -416,6 +419,62 @@ def test_the_run_folder_gives_the_log_folder_and_exp_id_of_the_commands_printed(
     Path(manager.save_path).mkdir(parents=True)
     manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN)
     assert plugin._run_commands("cql", "Panda-v0", Path(manager.save_path))[1].endswith("-f logs --exp-id 2 -n 700")
+
+
+@checks("ExperimentManager.setup_experiment uses save_path and params_path first in create_log_folder")
+def test_a_run_whose_number_another_run_took_meanwhile_moves_to_the_next_with_every_path(monkeypatch, tmp_path):
+    manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN, "--save-freq", "2", "--eval-freq", "-1")
+    assert Path(manager.save_path) == Path("logs", "cql", "Panda-v0_1")
+    other = tmp_path / "logs" / "cql" / "Panda-v0_1"
+    other.mkdir(parents=True)  # another run started with this one made its folder first
+    seen = {}
+
+    def create_envs(n_envs, eval_env=False, no_log=False):  # what the zoo makes next writes in save_path
+        seen.update(save_path=manager.save_path, params_path=manager.params_path, callbacks=list(manager.callbacks))
+        seen.update(params_folder=os.path.isdir(manager.params_path))
+        raise Stop
+
+    manager.create_envs = create_envs
+    with pytest.raises(Stop):
+        ExperimentManager.setup_experiment(manager)
+    assert seen["save_path"] == os.path.join(manager.log_path, "Panda-v0_2")
+    assert seen["params_path"] == f"{seen['save_path']}/Panda-v0" and seen["params_folder"]
+    (checkpoint,) = seen["callbacks"]
+    assert isinstance(checkpoint, CheckpointCallback) and checkpoint.save_path == seen["save_path"]
+    assert other.is_dir() and not Path(seen["save_path"]).exists()  # the other run's kept; this one's, without a model, gone
+
+
+@checks("the zoo saves the model it trains with model.save and model.save_replay_buffer")
+def test_the_zoos_saves_of_a_model_go_through_its_class_which_the_plugin_makes_atomic(monkeypatch, tmp_path):
+    written = []
+
+    class Recording(SAC):
+        def save(self, path, exclude=None, include=None):
+            written.append(Path(path))
+            super().save(path, exclude, include)
+
+        def save_replay_buffer(self, path):
+            written.append(Path(path))
+            super().save_replay_buffer(path)
+
+    manager = made_by_train(monkeypatch, tmp_path, "--algo", "sac", "--env", "Pendulum-v1", "-f", "logs", "--save-freq",
+                            "2", "--eval-freq", "2", "--eval-episodes", "1", "--save-replay-buffer")  # fmt: skip
+    manager.create_log_folder()
+    manager.create_callbacks()
+    assert [type(callback) for callback in manager.callbacks] == [CheckpointCallback, EvalCallback]
+    manager.callbacks[0].save_replay_buffer = True
+    model = Recording("MlpPolicy", "Pendulum-v1", buffer_size=10, learning_starts=10, policy_kwargs={"net_arch": [4]})
+    plugin._atomic_saves(model)
+    assert isinstance(model, Recording) and type(model).__name__ == "Recording" and type(model).saves_atomically
+    model.learn(2, callback=manager.callbacks)
+    manager.save_trained_model(model)
+    run = Path(manager.save_path)
+    # Each file written under a temporary name beside its own, then renamed: none is left.
+    finals = [re.fullmatch(r"\.(.+)\.\d+-[0-9a-f]{8}\.tmp", path.name)[1] for path in written]
+    assert {path.parent for path in written} == {run}
+    assert finals == ["rl_model_2_steps.zip", "rl_model_replay_buffer_2_steps.pkl", "best_model.zip", "Pendulum-v1.zip",
+                      "replay_buffer.pkl"]  # fmt: skip
+    assert sorted(path.name for path in run.iterdir() if path.suffix in (".zip", ".pkl", ".tmp")) == sorted(finals)
 
 
 @checks("ExperimentManager.objective calls the sampler with (trial, n_actions, n_envs, additional_args)")

@@ -12,13 +12,15 @@ the table and figures.
 Every finished training and evaluation is recorded in the results folder, and the same command skips them; a
 killed training continues from its latest checkpoint (``--save-freq``). ``--finetune TASK`` adds a stage: each
 seed's best CQL model fine-tuned online on TASK (hyperparams/cql_finetune.yml), a row of its own that used
-interaction with TASK, which it is then scored on too.
+interaction with TASK, which it is then scored on too. Ctrl-C (or SIGTERM) ends it at once on one line, with status
+130 (143): the units recorded stay, and the same command continues with the others.
 """
 
 from __future__ import annotations
 
 import argparse
 import shlex
+import signal
 import sys
 
 import envs
@@ -32,6 +34,7 @@ from sb3_cql.benchmark.runner import (
     UnitsFailed,
     run_protocol,
 )
+from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
 
 #: ``--quick``: training steps, evaluation every ... steps over ... episodes, checkpoints, final episodes.
 QUICK = {"n_timesteps": 2000, "eval_freq": 1000, "eval_episodes": 5, "save_freq": 1000, "episodes": 20}
@@ -97,6 +100,10 @@ def main(argv: list[str] | None = None) -> None:
     except BenchmarkError as error:  # bad input, found before any work: a usage error
         print(f"python -m sb3_cql.benchmark: error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+    except KeyboardInterrupt as interrupt:
+        print(f"interrupted: the units done are recorded in {results.root}; the same command continues with the others",
+              file=sys.stderr)  # fmt: skip
+        raise SystemExit(exit_status(interrupt)) from None
     if failed is not None:
         sys.exit(f"error: {failed}")
 
@@ -114,4 +121,9 @@ def make_outputs(results: ResultsFolder, tasks: list[str], filmstrips: bool = Tr
 
 
 if __name__ == "__main__":
-    main()
+    started()  # the package quieted Ctrl-C during the start-up imports (sb3_cql.interrupts); main says what it kept
+    terminate_as_interrupt()
+    try:
+        main()
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C prints no traceback either

@@ -10,6 +10,7 @@ import fcntl
 import inspect
 import multiprocessing
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -201,6 +202,35 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
+def _start_worker(parent: int) -> None:
+    """A worker process dies with the runner (:func:`_die_with_parent`) and leaves Ctrl-C to it: the runner ends the
+    workers itself, at once, and says what was kept (a worker would print a traceback)."""
+    _die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _start_zoo_run(parent: int) -> None:
+    """A zoo process dies with its worker (:func:`_die_with_parent`) and takes Ctrl-C as the zoo does (saving the model
+    at that step), which its worker ignores (an ignored signal stays ignored across ``exec``)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    _die_with_parent(parent)
+
+
+@contextmanager
+def _workers(count: int) -> Iterator[ProcessPoolExecutor]:
+    """``count`` worker processes (spawned clean: no torch state, no inherited locks), waited for when the block ends;
+    on Ctrl-C (``KeyboardInterrupt``) they are ended at once instead, each taking its zoo run along, not waited for
+    through the units they run (what is recorded stays, for the same command to continue)."""
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(count, context, initializer=_start_worker, initargs=(os.getpid(),)) as pool:
+        try:
+            yield pool
+        except KeyboardInterrupt:
+            for worker in multiprocessing.active_children():
+                worker.terminate()
+            raise
+
+
 def _seconds(seconds: float) -> str:
     minutes, seconds = divmod(int(round(seconds)), 60)
     hours, minutes = divmod(minutes, 60)
@@ -269,10 +299,10 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: s
         times[segment] = [start, start]
         write_json(times_path, times)
         with open(log, "a") as file:
-            file.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} segment {segment}: {' '.join(command)}\n")
+            file.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} segment {segment}: {shlex.join(command)}\n")
             file.flush()
             returncode = subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                        preexec_fn=partial(_die_with_parent, os.getpid())).returncode  # fmt: skip
+                                        preexec_fn=partial(_start_zoo_run, os.getpid())).returncode  # fmt: skip
         times[segment] = [start, time.time()]
         write_json(times_path, times)
         if returncode != 0:
@@ -393,9 +423,7 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
         system = results.root / "system.json"
         if not system.is_file():
             write_json(system, system_info())
-        context = multiprocessing.get_context("spawn")  # workers start clean (no torch state, no inherited locks)
-        pool = ProcessPoolExecutor(protocol.workers, context, initializer=_die_with_parent, initargs=(os.getpid(),))
-        with pool:
+        with _workers(protocol.workers) as pool:
             # Units wait here, not in the pool's own (first in, first out) queue, so that a finished training's
             # evaluations go first: its results come as soon as possible, not after every other training.
             waiting: deque[Unit] = deque()

@@ -4,10 +4,11 @@ buffer: the base of :class:`~sb3_cql.CQL` and :class:`~sb3_cql.BC`."""
 from __future__ import annotations
 
 import io
+import numbers
 import os
 import time
 import warnings
-from pathlib import Path
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
@@ -24,6 +25,7 @@ from stable_baselines3.common.vec_env import VecTransposeImage, unwrap_vec_wrapp
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
+from sb3_cql.common.atomic import save_atomically
 from sb3_cql.common.buffers import (
     ActionChunkReplayBuffer,
     MixedReplayBuffer,
@@ -37,6 +39,58 @@ if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard datas
     from minari import MinariDataset
 
 SelfOfflineSAC = TypeVar("SelfOfflineSAC", bound="OfflineSAC")
+
+
+class SettingError(ValueError):
+    """A keyword argument of an offline algorithm (given to its constructor or to ``load``) that it cannot train with,
+    or a replay buffer given as its ``dataset`` that it cannot train on; the message names the keyword and the value."""
+
+
+def is_count(value: Any, minimum: int) -> bool:
+    """Whether ``value`` is an integer (not a bool) of at least ``minimum``."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
+
+
+def check_count(name: str, value: Any, minimum: int) -> None:
+    """:class:`SettingError` unless the setting ``name`` is an integer of at least ``minimum``."""
+    if not is_count(value, minimum):
+        raise SettingError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def check_fraction(name: str, value: Any) -> None:
+    """:class:`SettingError` unless the setting ``name`` is a number in (0, 1]."""
+    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and 0 < value <= 1):
+        raise SettingError(f"{name} must be in (0, 1], got {value!r}")
+
+
+def check_non_negative(names_values: Iterable[tuple[str, Any]], strictly: bool = False) -> None:
+    """:class:`SettingError` unless each setting is a number >= 0 (> 0 with ``strictly``)."""
+    for name, value in names_values:
+        number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        if not number or not (value > 0 if strictly else value >= 0):
+            raise SettingError(f"{name} must be a number {'>' if strictly else '>='} 0, got {value!r}")
+
+
+def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None:
+    """The first NaN or infinity among the filled transitions of ``buffer``: ``(field, index, env, value)``, the
+    field (``observations['key']`` for a dict of them), the buffer index and env of its transition; ``None`` if all
+    are finite."""
+    size = buffer.size()
+    fields = []
+    for name in ("observations", "next_observations"):
+        array = getattr(buffer, name, None)
+        items = array.items() if isinstance(array, dict) else [(None, array)]
+        fields += [(name if key is None else f"{name}[{key!r}]", values) for key, values in items]
+    fields += [("actions", buffer.actions), ("rewards", buffer.rewards)]
+    for name, values in fields:
+        if values is None or not np.issubdtype(values.dtype, np.floating):
+            continue
+        filled = values[:size].reshape(size, buffer.n_envs, -1)
+        bad = np.argwhere(~np.isfinite(filled))
+        if len(bad):
+            index, env, element = bad[0]
+            return name, int(index), int(env), float(filled[index, env, element])
+    return None
 
 
 def behaviour_cloning_loss(mean_actions: th.Tensor, actions: th.Tensor) -> th.Tensor:
@@ -62,11 +116,16 @@ class OfflineSAC(SAC):
     ``predict`` applies the same normalisation after ``save``/``load``. :meth:`load` does not reload the data: a
     loaded model predicts with a one-transition buffer, and refills it from its dataset id when it trains again.
 
+    A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative step count, a ``batch_size`` below
+    1, ...; also one given to :meth:`load`) is a :class:`SettingError` naming the keyword and its value, raised when
+    the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity. :meth:`save`
+    and :meth:`save_replay_buffer` leave a file whole or none.
+
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
     :param env: the environment (for its spaces, and the default evaluation env).
-    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
-        ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`). A missing standard
-        id (``sb3cql/Panda-v0/pid-v0``, ...) is collected first (:func:`sb3_cql.data.ensure_dataset`).
+    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer`` (of finite values); ``None`` for an empty
+        buffer of ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`). A missing
+        standard id (``sb3cql/Panda-v0/pid-v0``, ...) is collected first (:func:`sb3_cql.data.ensure_dataset`).
     :param learning_rate: learning rate of the critics and the entropy coefficient.
     :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
@@ -97,6 +156,8 @@ class OfflineSAC(SAC):
     }
     #: SAC's policy classes and ours for each: a model saved with one of SAC's loads into ours.
     policy_from_sac: ClassVar[dict[type[BasePolicy], type[BasePolicy]]] = FROM_SAC
+    #: :meth:`save` and :meth:`save_replay_buffer` leave a file whole or none (the zoo plugin's test of a model).
+    saves_atomically: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -115,16 +176,13 @@ class OfflineSAC(SAC):
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
-        if online_fraction is not None and not 0.0 <= online_fraction <= 1.0:
-            raise ValueError(f"online_fraction must be None (offline training) or in [0, 1], got {online_fraction}")
         _refuse_unsupported(kwargs)
-        if action_chunk < 1:
-            raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
+        check_count("action_chunk", action_chunk, 1)
         if action_chunk > 1 and kwargs.get("n_steps", 1) not in (1, action_chunk):
-            raise ValueError(f"n_steps={kwargs['n_steps']} with action_chunk={action_chunk}: a chunk's backup spans its "
-                             f"{action_chunk} steps (n_steps is the chunk's length)")  # fmt: skip
+            raise SettingError(f"n_steps={kwargs['n_steps']} with action_chunk={action_chunk}: a chunk's backup spans "
+                               f"its {action_chunk} steps (n_steps is the chunk's length)")  # fmt: skip
         if action_chunk > 1 and kwargs.get("replay_buffer_class") is not None:
-            raise ValueError("action_chunk > 1 samples from a replay buffer class of its own: leave replay_buffer_class out")
+            raise SettingError("action_chunk > 1 samples from a replay buffer class of its own: leave replay_buffer_class out")
         self.action_chunk = action_chunk
         if action_chunk > 1:
             kwargs["n_steps"] = action_chunk
@@ -138,7 +196,7 @@ class OfflineSAC(SAC):
         policy_kwargs = dict(policy_kwargs or {})
         mlp = policy in ("MlpPolicy", self.policy_aliases["MlpPolicy"]) and "features_extractor_class" not in policy_kwargs
         if normalize_observations and not mlp:
-            raise ValueError(
+            raise SettingError(
                 "normalize_observations=True z-scores flat Box observations of an MlpPolicy with SB3's own features "
                 f"(not {policy if isinstance(policy, str) else policy.__name__} or a features_extractor_class): leave it None"
             )
@@ -160,9 +218,31 @@ class OfflineSAC(SAC):
             **kwargs,
         )
 
+    def _check_settings(self) -> None:
+        """:class:`SettingError` for a setting outside what training can use, where SB3 would train on without a word
+        or fail later with another message: run when the model is set up, so that it checks the keywords given to
+        ``load`` (a fine-tuning's) too. Subclasses add theirs."""
+        check_fraction("gamma", self.gamma)
+        check_fraction("tau", self.tau)
+        check_count("batch_size", self.batch_size, 1)
+        check_count("learning_starts", self.learning_starts, 0)
+        if self.gradient_steps != -1 and not is_count(self.gradient_steps, 0):
+            raise SettingError(f"gradient_steps must be an integer >= 0, or -1 (as many as the env steps), "
+                               f"got {self.gradient_steps!r}")  # fmt: skip
+        check_count("train_freq", self.train_freq[0] if isinstance(self.train_freq, tuple) else self.train_freq, 1)
+        check_count("target_update_interval", self.target_update_interval, 1)
+        check_count("n_steps", self.n_steps, 1)
+        check_count("buffer_size", self.buffer_size, 1)
+        check_count("online_buffer_size", self.online_buffer_size, 1)
+        check_count("action_chunk", self.action_chunk, 1)
+        fraction = self.online_fraction
+        if fraction is not None and not (isinstance(fraction, numbers.Real) and 0.0 <= fraction <= 1.0):
+            raise SettingError(f"online_fraction must be None (offline training) or in [0, 1], got {fraction!r}")
+
     def _setup_model(self) -> None:
+        self._check_settings()
         if isinstance(self.observation_space, spaces.Dict) and self.n_steps > 1:
-            raise ValueError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
+            raise SettingError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
         if getattr(self, "_sb3_chooses_buffer_class", True):
             # SB3 chose the buffer class (from n_steps and the observation space) and it was saved with the model: a
             # loaded model chooses again, for the n_steps given to load. Kept, SB3 would take it for a custom class that
@@ -174,8 +254,8 @@ class OfflineSAC(SAC):
         chunked, auto_entropy = getattr(self, "action_chunk", 1) > 1, self.target_entropy == "auto"
         if chunked:
             if not issubclass(self.policy_class, OfflinePolicy):
-                raise ValueError(f"action_chunk > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
-                                 f"got {self.policy_class.__name__}")  # fmt: skip
+                raise SettingError(f"action_chunk > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
+                                   f"got {self.policy_class.__name__}")  # fmt: skip
             self.replay_buffer_class = ActionChunkReplayBuffer
             self.replay_buffer_kwargs.update(n_steps=self.action_chunk, gamma=self.gamma)
         with warnings.catch_warnings():
@@ -199,10 +279,16 @@ class OfflineSAC(SAC):
         if isinstance(dataset, ReplayBuffer):
             fits = dataset.obs_shape in (get_obs_shape(self.observation_space), get_obs_shape(data_space))
             if not fits or dataset.action_dim != self.action_space.shape[0]:
-                raise ValueError(
-                    f"the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) do not "
-                    f"match the env's {get_obs_shape(data_space)} and {self.action_space.shape}"
+                raise SettingError(
+                    f"dataset: the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) "
+                    f"do not match the env's {get_obs_shape(data_space)} and {self.action_space.shape}"
                 )
+            non_finite = first_non_finite(dataset)
+            if non_finite is not None:  # it would train on as a NaN loss, or a distribution torch refuses
+                field, index, env, value = non_finite
+                at = f"index {index}" + (f", env {env}" if dataset.n_envs > 1 else "")
+                raise SettingError(f"dataset: the replay buffer's {field} hold {value} at {at}: every value must be "
+                                   "finite")  # fmt: skip
             if dataset.obs_shape != get_obs_shape(self.observation_space):
                 dataset = transposed_images(dataset, self.observation_space)
             chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
@@ -225,7 +311,7 @@ class OfflineSAC(SAC):
             )
         size = self.replay_buffer.size()
         if size == 0:
-            raise ValueError("the dataset holds no transitions")
+            raise SettingError("the dataset holds no transitions")
         if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
             observations = self.replay_buffer.observations[:size].reshape(size, -1)
             mean, std = observations.mean(axis=0), observations.std(axis=0)
@@ -325,7 +411,7 @@ class OfflineSAC(SAC):
         if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
             size = 0 if self.replay_buffer is None else self.replay_buffer.size()
             hint = "" if isinstance(self.dataset, str) else " (a loaded model reloads them from its dataset id; none here)"
-            raise ValueError(
+            raise SettingError(
                 f"training needs batch_size={self.batch_size} offline transitions or more, the buffer has {size}{hint}"
             )
 
@@ -376,19 +462,26 @@ class OfflineSAC(SAC):
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(step=self.num_timesteps)
 
+    def save(
+        self,
+        path: str | os.PathLike | io.BufferedIOBase,
+        exclude: Iterable[str] | None = None,
+        include: Iterable[str] | None = None,
+    ) -> None:
+        """SB3's, whole or not at all (:func:`~sb3_cql.common.atomic.save_atomically`): a save cut short (an error,
+        Ctrl-C, ``kill -9``) leaves the file that was at ``path`` before, or none. ``path`` without a suffix gets
+        ``.zip``, as SB3's; a file object is written as SB3 writes it.
+
+        :param path: where to save the model.
+        :param exclude: attributes not to save, besides SB3's own exclusions.
+        :param include: attributes to save although excluded.
+        """
+        save_atomically(lambda target: super(OfflineSAC, self).save(target, exclude, include), path, "zip")
+
     def save_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase) -> None:
-        """SB3's, written to a temporary file then renamed: an interrupted save leaves the previous file whole. A
-        fine-tuning model's :class:`MixedReplayBuffer` saves its online transitions only."""
-        if isinstance(path, io.BufferedIOBase):
-            super().save_replay_buffer(path)
-            return
-        final = Path(path) if Path(path).suffix else Path(path).with_suffix(".pkl")
-        partial = final.with_name(f".{final.stem}.partial.pkl")
-        try:
-            super().save_replay_buffer(partial)
-            os.replace(partial, final)
-        finally:
-            partial.unlink(missing_ok=True)
+        """SB3's, whole or not at all, as :meth:`save` (``.pkl`` added to a path without a suffix). A fine-tuning
+        model's :class:`MixedReplayBuffer` saves its online transitions only."""
+        save_atomically(super().save_replay_buffer, path, "pkl")
 
     def load_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
         """SB3's. A fine-tuning buffer comes back with its online transitions only: the offline data this model holds
@@ -427,4 +520,4 @@ def _refuse_unsupported(kwargs: dict[str, Any]) -> None:
     """One line for a SAC keyword set to a value an offline algorithm cannot honour."""
     for keyword, accepted, reason in UNSUPPORTED_SAC_KEYWORDS:
         if kwargs.get(keyword, accepted) != accepted:
-            raise ValueError(f"{keyword}={kwargs[keyword]!r} is not supported: {reason}")
+            raise SettingError(f"{keyword}={kwargs[keyword]!r} is not supported: {reason}")

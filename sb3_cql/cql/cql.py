@@ -17,6 +17,7 @@ from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
 from sb3_cql.common import OfflineSAC, ReturnToGoReplayBuffer, behaviour_cloning_loss
+from sb3_cql.common.offline import SettingError, check_count, check_non_negative
 from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLActor, CQLCritic, MlpPolicy, MultiInputPolicy
 
 if TYPE_CHECKING:
@@ -54,7 +55,10 @@ class CQL(OfflineSAC):
     with the samples' ``discounts``, as SAC's (the critics' rewards summed over those steps, :meth:`critic_rewards`).
 
     Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
-    learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere.
+    learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere. A setting training
+    cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``, ``batch_size`` 0, ..., also given to
+    :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its value; so is a replay buffer given as
+    ``dataset`` that holds a NaN or an infinity. ``save`` and ``save_replay_buffer`` leave a file whole or none.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with CQL's
         actor and critic passes, :mod:`sb3_cql.cql.policies`).
@@ -197,10 +201,6 @@ class CQL(OfflineSAC):
         use_sde_at_warmup: bool = False,
         _init_setup_model: bool = True,
     ) -> None:
-        if n_steps > 1 and reward_bias != 0 and gamma >= 1:
-            raise ValueError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
-        if cql_n_actions < 1 or cql_temperature <= 0 or cql_alpha < 0 or not actor_bc_weight >= 0:
-            raise ValueError("cql_n_actions must be >= 1, cql_temperature > 0, cql_alpha >= 0 and actor_bc_weight >= 0")
         self.cql_alpha = cql_alpha
         self.cql_n_actions = cql_n_actions
         self.cql_temperature = cql_temperature
@@ -253,11 +253,23 @@ class CQL(OfflineSAC):
             _init_setup_model=_init_setup_model,
         )
 
-    def _setup_model(self) -> None:
+    def _check_settings(self) -> None:
+        """OfflineSAC's checks, and those of CQL's own settings."""
+        super()._check_settings()
+        check_count("bc_steps", self.bc_steps, 0)
+        check_count("cql_n_actions", self.cql_n_actions, 1)
+        check_non_negative([("cql_alpha", self.cql_alpha), ("actor_bc_weight", self.actor_bc_weight)])
+        check_non_negative([("cql_temperature", self.cql_temperature)], strictly=True)
+        if self.bc_learning_rate is not None:
+            check_non_negative([("bc_learning_rate", self.bc_learning_rate)], strictly=True)
+        if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
+            raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
         if self.cql_calibrated and self.action_chunk > 1:
-            raise ValueError("cql_calibrated is not supported with action_chunk > 1 yet (returns-to-go of chunk samples)")
+            raise SettingError("cql_calibrated is not supported with action_chunk > 1 yet (returns-to-go of chunk samples)")
+
+    def _setup_model(self) -> None:
         if self.cql_calibrated and isinstance(self.observation_space, spaces.Dict):
-            raise ValueError("cql_calibrated is not supported with Dict observations (returns-to-go need a Box buffer)")
+            raise SettingError("cql_calibrated is not supported with Dict observations (returns-to-go need a Box buffer)")
         super()._setup_model()
         if self.cql_calibrated and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
             self._calibrate_buffer()

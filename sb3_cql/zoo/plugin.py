@@ -12,6 +12,9 @@ from __future__ import annotations
 import argparse
 import functools
 import inspect
+import os
+import re
+import shlex
 import shutil
 import signal
 import sys
@@ -19,7 +22,7 @@ import threading
 import warnings
 from pathlib import Path
 from types import ModuleType
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, NoReturn
 
 #: The algorithm the package adds to the zoo, with its search space.
 ALGO = "cql"
@@ -59,12 +62,16 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
                 "returns (hyperparams, saved copy): our config keys out of the first; its env_kwargs for evaluation too; "
                 "a chunked -i model's settings in; our noise keys out"),
     ZooInternal("method", "ExperimentManager.setup_experiment", (),
-                "a run stopped before its first model (e.g. while its dataset is collected) leaves no folder; returns "
-                "(model, saved hyperparams), whose model gets our action noise"),
+                "a damaged -i model, a dataset error or a bad setting ends the run on one line; a run stopped before its "
+                "first model (e.g. while its dataset is collected) leaves no folder; returns (model, saved "
+                "hyperparams), whose model gets our action noise and saves that leave a file whole or none"),
+    ZooInternal("method", "ExperimentManager.create_log_folder", (),
+                "the run's folder claimed with os.mkdir: two runs started at once take two numbers"),
     ZooInternal("method", "ExperimentManager.create_envs", ("eval_env",),
                 "an -i model whose spaces do not fit the training env ends the run on one line, before SB3 loads it"),
     ZooInternal("method", "ExperimentManager.learn", ("model",),
-                "Ctrl-C noted (the zoo swallows it); fine-tuning checkpoints keep, and -i CHECKPOINT loads, transitions"),
+                "Ctrl-C noted (the zoo swallows it); fine-tuning checkpoints keep, and -i CHECKPOINT loads, transitions; "
+                "a dataset error or a bad setting ends the run on one line"),
     ZooInternal("method", "ExperimentManager.save_trained_model", ("model",),
                 "where the models are and how to use them, or what an interrupted run kept"),
     ZooInternal("attribute", "rl_zoo3.utils.ALGOS", ALGOS, "--algo's choices and the classes the zoo builds"),
@@ -77,7 +84,10 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
     ZooInternal("attribute", "ExperimentManager.eval_env_kwargs", ("set",), "the kwargs create_envs gives the evaluation env"),
     ZooInternal("attribute", "ExperimentManager.args", ("env_kwargs",), "the train.py Namespace the zoo saves as args.yml"),
     ZooInternal("attribute", "ExperimentManager.callbacks", ("read",), "the CheckpointCallback the zoo made for --save-freq"),
-    ZooInternal("attribute", "ExperimentManager.save_path", ("read",), "the run's folder"),
+    ZooInternal("attribute", "ExperimentManager.save_path", ("read", "set"),
+                "the run's folder, moved to the next free number when another run made it first"),
+    ZooInternal("attribute", "ExperimentManager.params_path", ("set",), "<save_path>/<env id>, moved with the run's folder"),
+    ZooInternal("attribute", "ExperimentManager.log_path", ("read",), "<log folder>/<algo>/, where the run folders are"),
     ZooInternal("attribute", "ExperimentManager.trained_agent", ("read",), "the -i model"),
     ZooInternal("attribute", "ExperimentManager.continue_training", ("read",), "whether -i names a model to load"),
     ZooInternal("attribute", "ExperimentManager.n_timesteps", ("read",), "the step count an interrupted run names"),
@@ -113,6 +123,11 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
                 (), "a run's videos are recorded in the action mode it was trained in"),
     ZooInternal("behaviour", "ExperimentManager.save_path is <log folder>/<algo>/<env id>_<N>", (),
                 "the log folder and --exp-id of the commands printed at the end"),
+    ZooInternal("behaviour", "ExperimentManager.setup_experiment uses save_path and params_path first in create_log_folder",
+                (), "a folder claimed there is the one the run's callbacks, monitor, config and models are written in"),
+    ZooInternal("behaviour", "the zoo saves the model it trains with model.save and model.save_replay_buffer", (),
+                "CheckpointCallback, EvalCallback's best_model and save_trained_model write through the model's class, "
+                "which the plugin gives saves that leave a file whole or none"),
     ZooInternal("behaviour", "ExperimentManager.read_hyperparameters applies --hyperparams before returning", (),
                 "a chunked entry's settings are added after them, without overriding them"),
     ZooInternal("behaviour", "ExperimentManager._preprocess_action_noise knows normal and ornstein-uhlenbeck only", (),
@@ -128,6 +143,11 @@ CONFIG_OPTIONS = ("--eval-freq", "--eval-episodes", "--save-freq")
 CHUNKED_KEY = "chunked"
 #: Steps of a pink-noise sequence on an env without a time limit.
 PINK_SEQ_LEN = 1000
+#: ``rl_zoo3.train``'s name in its error lines.
+PROG = "python -m rl_zoo3.train"
+#: Our errors that say what to fix in the command line, the config or the data, as ``(module, class)``: a run ends
+#: on their one line (any other error is a bug, shown with its traceback).
+INPUT_ERRORS = (("sb3_cql.data.replay", "DatasetError"), ("sb3_cql.common.offline", "SettingError"))
 
 
 def zoo_internal(name: str) -> ZooInternal:
@@ -215,13 +235,36 @@ def _our_config(config: str) -> str:
     return str(ours) if not Path(config).exists() and ours.is_file() else config
 
 
-def _checkpoint_buffer(model_path: Path) -> Path | None:
-    """The replay buffer saved with a checkpoint ``rl_model_<N>_steps.zip`` (SB3's ``CheckpointCallback``), if any."""
+def _checkpoint_parts(model_path: Path) -> tuple[str, int] | None:
+    """The prefix and step of a checkpoint ``<prefix>_<N>_steps.zip`` (SB3's ``CheckpointCallback``), else None."""
     parts = model_path.stem.rsplit("_", 2)  # rl_model, <N>, steps
     if len(parts) != 3 or parts[2] != "steps" or not parts[1].isdigit():
         return None
+    return parts[0], int(parts[1])
+
+
+def _checkpoint_buffer(model_path: Path) -> Path | None:
+    """The replay buffer saved with a checkpoint ``rl_model_<N>_steps.zip`` (SB3's ``CheckpointCallback``), if any."""
+    parts = _checkpoint_parts(model_path)
+    if parts is None:
+        return None
     path = model_path.with_name(f"{parts[0]}_replay_buffer_{parts[1]}_steps.pkl")
     return path if path.is_file() else None
+
+
+def _damaged_model(model_path: Path) -> str | None:
+    """Why the ``-i`` model at ``model_path`` cannot be loaded (a copy or a save cut short), naming the newest checkpoint
+    beside it that opens, the one to continue from; None where it opens."""
+    from sb3_cql.common.atomic import saved_model_problem
+
+    problem = saved_model_problem(model_path)
+    if problem is None:
+        return None
+    checkpoints = sorted(((parts[1], path) for path in model_path.parent.glob("rl_model_*_steps.zip")
+                          if path != model_path and (parts := _checkpoint_parts(path)) is not None), reverse=True)  # fmt: skip
+    good = next((path for _, path in checkpoints if saved_model_problem(path) is None), None)
+    beside = f"the last good checkpoint beside it is {good}" if good else "no checkpoint beside it opens"
+    return f"{model_path} cannot be loaded: {problem}; {beside}"
 
 
 def _holds_a_model(folder: Path) -> bool:
@@ -229,15 +272,67 @@ def _holds_a_model(folder: Path) -> bool:
     return any(folder.rglob("*.zip"))
 
 
+def _claim_run_folder(manager: Any) -> Path:
+    """Make the run's folder, ``save_path``, with ``os.mkdir``, which fails where it exists: a run started at the same
+    moment (which took the same number in ``__init__``) made it first, and this one takes the next free number, with
+    ``save_path`` and ``params_path`` moved there."""
+    folder = Path(manager.save_path)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            numbered = re.fullmatch(rf"{re.escape(str(manager.env_name))}_(\d+)(.*)", folder.name)
+            if numbered is None:
+                raise
+            manager.save_path = os.path.join(manager.log_path, f"{manager.env_name}_{int(numbered[1]) + 1}{numbered[2]}")
+            manager.params_path = f"{manager.save_path}/{manager.env_name}"
+            folder = Path(manager.save_path)
+
+
+def _remove_model_less_folder(manager: Any) -> Path | None:
+    """Remove the run folder this run made if it holds no model yet (the next run takes its number); return it then."""
+    folder = getattr(manager, "_sb3_cql_run_folder", None)
+    if folder is None or not folder.is_dir() or _holds_a_model(folder):
+        return None
+    shutil.rmtree(folder, ignore_errors=True)
+    return folder
+
+
+def _input_error(error: BaseException) -> bool:
+    """Whether ``error`` is one of :data:`INPUT_ERRORS`, looked up in the modules loaded: a run that never loaded a
+    dataset cannot have a ``DatasetError``, and imports no Minari to check it."""
+    return any(isinstance(error, getattr(sys.modules[module], name)) for module, name in INPUT_ERRORS if module in sys.modules)
+
+
+def _fail(message: str) -> NoReturn:
+    """End the run on one line, ``python -m rl_zoo3.train: error: ...``, with status 2 (a usage error's)."""
+    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
+    raise SystemExit(2) from None
+
+
+def _atomic_saves(model: Any) -> None:
+    """Make the saves of ``model`` (one of SB3's or another library's algorithms) leave a file whole or none, as ours
+    do: its class becomes :func:`~sb3_cql.common.atomic.with_atomic_saves` of it, its behaviour otherwise the same."""
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    from sb3_cql.common.atomic import with_atomic_saves
+
+    if isinstance(model, BaseAlgorithm) and not getattr(type(model), "saves_atomically", False):
+        model.__class__ = with_atomic_saves(type(model))
+
+
 def _run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
-    """What to do with a run's models: evaluate on the three tasks, record a video (the zoo's own ``--exp-id``)."""
+    """What to do with a run's models: evaluate on the three tasks, record a video (the zoo's own ``--exp-id``), each
+    command quoted for the shell (a folder with a space is one word)."""
     log_folder, exp_id = save_path.parent.parent, save_path.name.rsplit("_", 1)[-1]
     model = save_path / ("best_model.zip" if (save_path / "best_model.zip").is_file() else f"{env_id}.zip")
-    return [
-        f"evaluate on the three tasks: python -m sb3_cql.evaluate {model} --algo {algo} -n 100",
-        f"record a video: python -m rl_zoo3.record_video --algo {algo} --env {env_id} -f {log_folder} --exp-id {exp_id}"
-        f"{' --load-best' if model.name == 'best_model.zip' else ''} -n 700",
-    ]
+    load_best = ["--load-best"] if model.name == "best_model.zip" else []
+    evaluate = ["python", "-m", "sb3_cql.evaluate", str(model), "--algo", algo, "-n", "100"]
+    record = ["python", "-m", "rl_zoo3.record_video", "--algo", algo, "--env", env_id, "-f", str(log_folder),
+              "--exp-id", exp_id, *load_best, "-n", "700"]  # fmt: skip
+    return [f"evaluate on the three tasks: {shlex.join(evaluate)}", f"record a video: {shlex.join(record)}"]
 
 
 def _saved_data(model_path: str) -> dict[str, Any]:
@@ -404,19 +499,32 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
         # The zoo makes the run's folder before the model, whose dataset may first be collected: a run stopped there
         # (Ctrl-C, an error) would leave a folder without a model, and shift the next run's number.
         try:
+            if self.continue_training:  # a damaged -i model: SB3's load would fail with a traceback
+                damaged = _damaged_model(Path(self.trained_agent))
+                if damaged is not None:
+                    _fail(damaged)
             result = zoo["setup_experiment"](self)
-            if result is not None and self.algo in ALGOS:
-                _action_noise(self, result[0])
+            if result is not None:
+                _atomic_saves(result[0])
+                if self.algo in ALGOS:
+                    _action_noise(self, result[0])
             return result
         except BaseException as error:
-            folder = Path(self.save_path)
-            if folder.is_dir() and not _holds_a_model(folder):
-                shutil.rmtree(folder, ignore_errors=True)
+            removed = _remove_model_less_folder(self)
             if isinstance(error, KeyboardInterrupt):
                 if not getattr(error, "said", False):  # a dataset collection says what it kept itself
-                    print(f"interrupted before training started: no model yet, {folder} removed", file=sys.stderr)
+                    gone = f", {removed} removed" if removed is not None else ""
+                    print(f"interrupted before training started: no model yet{gone}", file=sys.stderr)
                 raise SystemExit(130) from None
+            if _input_error(error):
+                _fail(str(error))
             raise
+
+    def create_log_folder(self) -> None:
+        # The zoo numbered the run in __init__ (the highest number there + 1) and makes its folder with exist_ok: two
+        # runs started together would both write into one. The first to make it keeps the number.
+        self._sb3_cql_run_folder = _claim_run_folder(self)
+        zoo["create_log_folder"](self)
 
     def create_envs(self, *args: Any, **kwargs: Any) -> Any:
         env = zoo["create_envs"](self, *args, **kwargs)
@@ -430,9 +538,7 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
             if misfit is not None:
                 env.close()
                 env_kwargs = f" {self.env_kwargs}" if self.env_kwargs else ""
-                print(f"python -m rl_zoo3.train: error: {self.trained_agent} does not fit {self.env_name.gym_id}"
-                      f"{env_kwargs}: {misfit}", file=sys.stderr)  # fmt: skip
-                raise SystemExit(2)
+                _fail(f"{self.trained_agent} does not fit {self.env_name.gym_id}{env_kwargs}: {misfit}")
         return env
 
     def learn(self, model: Any) -> None:
@@ -446,19 +552,23 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
         # The zoo ends training quietly on Ctrl-C (it catches KeyboardInterrupt) and saves the model: note that it
         # was cut short, to say so after the save.
         self._sb3_cql_interrupted = False
-        if threading.current_thread() is not threading.main_thread():
-            zoo["learn"](self, model)
-            return
 
         def note_and_interrupt(signum: int, frame: Any) -> None:
             self._sb3_cql_interrupted = True
             raise KeyboardInterrupt
 
-        previous = signal.signal(signal.SIGINT, note_and_interrupt)
+        main_thread = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, note_and_interrupt) if main_thread else None
         try:
             zoo["learn"](self, model)
+        except Exception as error:  # a fine-tuning loads its offline data here
+            if not _input_error(error):
+                raise
+            _remove_model_less_folder(self)
+            _fail(str(error))
         finally:
-            signal.signal(signal.SIGINT, previous)
+            if main_thread:
+                signal.signal(signal.SIGINT, previous)
 
     def save_trained_model(self, model: Any) -> None:
         zoo["save_trained_model"](self, model)
@@ -476,8 +586,8 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
         for line in _run_commands(self.algo, env_id, folder):
             print(line)
 
-    ours = {wrapper.__name__: wrapper for wrapper in (__init__, read_hyperparameters, setup_experiment, create_envs,
-                                                      learn, save_trained_model)}  # fmt: skip
+    ours = {wrapper.__name__: wrapper for wrapper in (__init__, read_hyperparameters, setup_experiment, create_log_folder,
+                                                      create_envs, learn, save_trained_model)}  # fmt: skip
     assert set(ours) == set(zoo), "every wrapped method is named in ZOO_INTERNALS"
     for name, wrapper in ours.items():
         setattr(manager, name, functools.wraps(zoo[name])(wrapper))
