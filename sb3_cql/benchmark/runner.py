@@ -5,7 +5,6 @@ evaluate a policy on one task; and their scheduling over worker processes.
 
 from __future__ import annotations
 
-import ctypes
 import fcntl
 import inspect
 import multiprocessing
@@ -29,11 +28,10 @@ import yaml
 import envs
 from sb3_cql.benchmark.records import FINETUNE_ROW, ResultsFolder, finetune_parts, read_json, system_info, write_json
 from sb3_cql.benchmark.runs import Run
+from sb3_cql.interrupts import die_with_parent
 
 #: The task every algorithm trains on (thesis 4.3); the final evaluation covers all of ``envs.ENV_IDS``.
 TRAIN_ENV = "Panda-v0"
-#: prctl's option: the signal this process gets when its parent dies (linux/prctl.h).
-PR_SET_PDEATHSIG = 1
 #: The thesis's five seeds.
 THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
 #: The scripted PD controllers (``envs.CONTROLLERS``: the thesis's, ours that regrasps, whose noisy runs are the data,
@@ -122,6 +120,8 @@ class Protocol:
     :param workers: worker processes (each zoo process gets one torch thread when there are several).
     :param finetune: tasks on which each seed's best offline model of every algorithm that fine-tunes (CQL) is
         fine-tuned online (``hyperparams/cql_finetune.yml``), each a row of its own (:data:`FINETUNE_ROW`).
+    :param ray_address: run the units as Ray tasks on the cluster at this address (``auto``, ``host:port``,
+        ``ray://host:port``) instead of local processes; the results folder must be on storage every node sees.
     """
 
     results: ResultsFolder
@@ -132,6 +132,7 @@ class Protocol:
     save_freq: int = 10_000
     workers: int = 1
     finetune: list[str] = field(default_factory=list)
+    ray_address: str | None = None
 
     def check(self) -> None:
         """Clear errors before any work: unknown algorithms or tasks, a zoo without our config for an algorithm."""
@@ -192,14 +193,10 @@ def _check_dataset(dataset_id: str | None) -> None:
 
 
 def _die_with_parent(parent: int) -> None:
-    """Linux: have the kernel kill this process when its parent dies, so that a killed runner takes its workers,
-    and a killed worker its zoo run, along (the next run resumes from the checkpoints) instead of leaving them to
-    write into the results beside a new runner. ``parent``: the expected parent's pid (exit now if it is gone)."""
-    if not sys.platform.startswith("linux"):
-        return
-    ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # it died before the prctl
-        os._exit(1)
+    """A killed runner takes its workers, and a killed worker its zoo run, along (the next run resumes from the
+    checkpoints) instead of leaving them to write into the results beside a new runner
+    (:func:`sb3_cql.interrupts.die_with_parent`)."""
+    die_with_parent(parent)
 
 
 def _start_worker(parent: int) -> None:
@@ -214,6 +211,31 @@ def _start_zoo_run(parent: int) -> None:
     at that step), which its worker ignores (an ignored signal stays ignored across ``exec``)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     _die_with_parent(parent)
+
+
+#: Environment variables of the command that the protocol's Ray tasks see too (a node's own otherwise).
+RAY_TASK_ENV = ("MINARI_DATASETS_PATH", "MPLBACKEND")
+
+
+@contextmanager
+def _units_executor(protocol: Protocol) -> Iterator[tuple[Any, int]]:
+    """Where the protocol's units run, and how many at a time: ``protocol.workers`` local processes
+    (:func:`_workers`), or with ``protocol.ray_address`` Ray tasks of one CPU each (their zoo runs get one torch
+    thread), as many at a time as the cluster has CPUs unless ``workers`` says otherwise; a task whose worker or node
+    died is run again (3 times), continuing from its checkpoints."""
+    if protocol.ray_address is None:
+        with _workers(protocol.workers) as pool:
+            yield pool, protocol.workers
+        return
+    from sb3_cql.cluster import ClusterError, RayExecutor
+
+    env_vars = {name: os.environ[name] for name in RAY_TASK_ENV if name in os.environ}
+    try:
+        executor = RayExecutor(protocol.ray_address, num_cpus=1, env_vars=env_vars)
+    except ClusterError as error:
+        raise BenchmarkError(str(error)) from None
+    with executor:
+        yield executor, protocol.workers if protocol.workers > 1 else executor.cpus
 
 
 @contextmanager
@@ -417,13 +439,13 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
     results = protocol.results
     counts = {"done": 0, "skipped": 0, "failed": 0}
     failures: list[str] = []
-    threads = 1 if protocol.workers > 1 else None
+    threads = 1 if protocol.workers > 1 or protocol.ray_address is not None else None
     with _exclusive(results):
         protocol.settings.check_folder(results)
         system = results.root / "system.json"
         if not system.is_file():
             write_json(system, system_info())
-        with _workers(protocol.workers) as pool:
+        with _units_executor(protocol) as (pool, slots):
             # Units wait here, not in the pool's own (first in, first out) queue, so that a finished training's
             # evaluations go first: its results come as soon as possible, not after every other training.
             waiting: deque[Unit] = deque()
@@ -453,7 +475,7 @@ def run_protocol(protocol: Protocol) -> dict[str, int]:
                 return units
 
             def submit() -> None:
-                while waiting and len(pending) < protocol.workers:
+                while waiting and len(pending) < slots:
                     name, function, arguments = waiting.popleft()
                     pending[pool.submit(function, *arguments)] = name
 
