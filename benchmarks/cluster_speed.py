@@ -54,7 +54,8 @@ def main() -> None:
             ray = timed([*data, "--ray", cluster.address, "--dataset-id", "bench/Panda-v0/ray-v0"], env, root)
             chunks = -(-args.episodes // 50)
             print(f"collection of {args.episodes} episodes: local pool of 2 workers {local:.1f} s, Ray cluster of 2 "
-                  f"nodes {ray:.1f} s: {ray / local:.2f}x; {(ray - local) / chunks:+.2f} s per chunk of 50 episodes")  # fmt: skip
+                  f"nodes {ray:.1f} s: {ray / local:.2f}x; {(ray - local) / chunks:+.2f} s per chunk of 50 "
+                  "episodes")  # fmt: skip
 
             timed([*data[:-1], "4", "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0"], env, root)
             protocol = [sys.executable, "-m", "sb3_cql.benchmark", "--algos", "bc", "--seeds", "1", "--n-timesteps",

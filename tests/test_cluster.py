@@ -14,6 +14,7 @@ import pytest
 from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 from sb3_cql.data.partial import DatasetFiles
 
+
 @pytest.fixture(scope="module")
 def cluster():
     """A head and a worker node of one CPU each: tasks run in the nodes' own worker processes."""

@@ -342,8 +342,13 @@ def test_truncated_dataset_file_is_reported():
         ("observations", 2, np.nan, r"episode 0, step 2: observation\[28\] is nan, not finite$"),
         ("rewards", 1, np.inf, r"episode 0, step 1: reward is inf, not finite$"),
         ("actions", 1, np.nan, r"episode 0, step 1: action\[8\] is nan, not finite$"),
-        ("actions", 2, 1.0, r"episode 0, step 2: action\[8\] is 1, outside the action space's bounds \[0, 0.04\] "
-                            r"\(data of another action mode\?\)"),
+        (
+            "actions",
+            2,
+            1.0,
+            r"episode 0, step 2: action\[8\] is 1, outside the action space's bounds \[0, 0.04\] "
+            r"\(data of another action mode\?\)",
+        ),
     ],
 )
 def test_non_finite_values_and_actions_outside_the_action_space_are_refused_naming_episode_and_step(

@@ -128,7 +128,7 @@ def test_kills_at_moments_chosen_by_time_lose_nothing(minari_root):
     for kill in range(4):  # each kill lands a little later in the collection
         process = start_cli(args, minari_root)
         held = files.episodes_held()
-        wait_for(lambda: files.episodes_held() > held, process)
+        wait_for(lambda held=held: files.episodes_held() > held, process)
         time.sleep(0.05 * kill)
         process.kill()
         process.communicate(timeout=60)
@@ -262,8 +262,9 @@ def test_a_model_collects_in_its_own_action_mode(minari_root, tmp_path):
     assert refused.returncode == 2 and len(refused.stderr.splitlines()) == 1
     assert "is that of action_mode 'delta', not that of the action_mode 'absolute' asked for" in refused.stderr
     with pytest.raises(ValueError, match="is that of action_mode 'delta'"):
-        collect_dataset(CollectionSpec(policy=str(model), algo="sac", n_episodes=1), "sb3cql/Panda-v0/model-v0",
-                        progress_bar=False)
+        collect_dataset(
+            CollectionSpec(policy=str(model), algo="sac", n_episodes=1), "sb3cql/Panda-v0/model-v0", progress_bar=False
+        )
 
     collected = run_cli(args, minari_root)
     assert collected.returncode == 0, collected.stderr

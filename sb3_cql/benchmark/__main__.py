@@ -51,10 +51,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tasks", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
     parser.add_argument("--results-dir", default="results")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (zoo runs get 1 torch thread if > 1)")
-    parser.add_argument("--ray", metavar="ADDRESS", default=None,
-                        help="run the units as Ray tasks on the cluster at ADDRESS (auto, host:port or ray://host:port), "
-                             "as many at a time as it has CPUs (or --workers); the results folder must be on storage "
-                             "every node sees")
+    parser.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        default=None,
+        help="run the units as Ray tasks on the cluster at ADDRESS (auto, host:port or ray://host:port), "
+        "as many at a time as it has CPUs (or --workers); the results folder must be on storage "
+        "every node sees",
+    )
     parser.add_argument("--quick", action="store_true", help="1 seed, short training, 20 final episodes")
     parser.add_argument("--n-timesteps", type=int, default=None, help="training steps of every run (default: configs)")
     parser.add_argument("--eval-freq", type=int, default=None, help="steps between evaluations in training (default: configs)")
@@ -93,8 +97,9 @@ def main(argv: list[str] | None = None) -> None:
                 finetune_args=shlex.split(args.finetune_args),
             )
             save_freq = args.save_freq if args.save_freq is not None else quick.get("save_freq", 10_000)
-            protocol = Protocol(results, args.algos, seeds, args.tasks, settings, save_freq, args.workers, args.finetune,
-                                args.ray)
+            protocol = Protocol(
+                results, args.algos, seeds, args.tasks, settings, save_freq, args.workers, args.finetune, args.ray
+            )
             try:
                 counts = run_protocol(protocol)
                 print(f"units: {counts['done']} done, {counts['skipped']} already recorded", flush=True)

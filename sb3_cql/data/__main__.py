@@ -25,10 +25,10 @@ import sys
 import gymnasium
 
 import envs
+from sb3_cql.cluster import ClusterError
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset, mix_datasets
 from sb3_cql.data.collection import WRITE_EVERY, model_action_mode
 from sb3_cql.data.ids import POLICIES, dataset_path
-from sb3_cql.cluster import ClusterError
 from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
 
 PROG = "python -m sb3_cql.data"
@@ -45,15 +45,26 @@ def main(argv: list[str] | None = None) -> None:
     collect.add_argument("--episodes", type=int, default=10_000)
     collect.add_argument("--seed", type=int, default=0, help="episode i is reset with seed + i")
     collect.add_argument("--noise", type=float, default=None, help="std (rad) of noise on the executed arm targets")
-    collect.add_argument("--action-mode", default=None, choices=["absolute", "delta"],
-                         help="the env's action mode (default: absolute; a model policy's own)")
+    collect.add_argument(
+        "--action-mode",
+        default=None,
+        choices=["absolute", "delta"],
+        help="the env's action mode (default: absolute; a model policy's own)",
+    )
     collect.add_argument("--workers", type=int, default=1)
-    collect.add_argument("--ray", metavar="ADDRESS", default=None,
-                         help="run the episodes as Ray tasks on the cluster at ADDRESS (auto, host:port or "
-                              "ray://host:port) instead of --workers processes: the same dataset")
+    collect.add_argument(
+        "--ray",
+        metavar="ADDRESS",
+        default=None,
+        help="run the episodes as Ray tasks on the cluster at ADDRESS (auto, host:port or "
+        "ray://host:port) instead of --workers processes: the same dataset",
+    )
     collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
-    collect.add_argument("--overwrite", action="store_true",
-                         help="replace an existing dataset of that id, and a partial collection of another spec")
+    collect.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing dataset of that id, and a partial collection of another spec",
+    )
     collect.add_argument(
         "--write-every",
         type=int,
@@ -99,7 +110,11 @@ def _run(args: argparse.Namespace) -> None:
             algo=args.algo,
         )
         dataset = collect_dataset(
-            spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite, write_every=args.write_every,
+            spec,
+            args.dataset_id,
+            workers=args.workers,
+            overwrite=args.overwrite,
+            write_every=args.write_every,
             ray_address=args.ray,
         )
         metadata = dataset.storage.metadata

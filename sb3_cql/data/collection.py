@@ -367,7 +367,8 @@ def _episodes(
 
 
 def _stop_workers(executor: ProcessPoolExecutor) -> None:
-    """Shut ``executor`` down without waiting for its tasks: kill its workers (they ignore SIGTERM), then wait for the executor to
+    """Shut ``executor`` down without waiting for its tasks: kill its workers (they ignore SIGTERM), then wait for the
+    executor to
     fail the pending futures and close its pipes. No future is cancelled first: in Python 3.11, the executor's thread
     raises InvalidStateError on a cancelled one when it finds its workers gone, and exiting before that thread is done
     can write to a pipe it closes (EBADF)."""
@@ -541,7 +542,7 @@ def _resume(files: DatasetFiles, spec: CollectionSpec, overwrite: bool) -> tuple
     held: set[int] = set()
     successes: list[bool] = []
     episode_files = files.episode_files()
-    for number, (indices, path) in enumerate(episode_files):
+    for indices, path in episode_files:
         try:
             episodes = files.read_episodes(path)
             if [episode.id for episode in episodes] != list(indices):
@@ -810,6 +811,10 @@ def standard_collection(dataset_id: str) -> CollectionSpec | None:
     return CollectionSpec(env_id, policy, n_episodes=episodes, env_kwargs=env_kwargs)
 
 
+#: The metadata a combined dataset takes from its first source.
+METADATA_OF_THE_FIRST = ("env_id", "env_kwargs", "ref_min_score", "ref_max_score")
+
+
 def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False) -> MinariDataset:
     """Combine the datasets ``source_ids`` (same env and spaces) into a new dataset ``dataset_id``, written
     atomically like :func:`collect_dataset`; its metadata lists them under ``combined_datasets``."""
@@ -835,7 +840,7 @@ def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False
                 "combined_datasets": list(source_ids),
                 "description": f"the datasets {', '.join(source_ids)} combined",
                 "success_rate": float(np.mean(successes)),
-                **{key: sources[0].storage.metadata[key] for key in ("env_id", "env_kwargs", "ref_min_score", "ref_max_score")},
+                **{key: sources[0].storage.metadata[key] for key in METADATA_OF_THE_FIRST},
             }
         )
         os.replace(files.assembling, files.assembled)
