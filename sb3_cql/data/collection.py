@@ -735,7 +735,9 @@ def _collect(
     except KeyboardInterrupt as interrupt:
         with _interrupts_deferred(reraise=False):  # more Ctrl-C while the finished episodes are written change nothing
             if not published and pending:
-                held += _write(files, pending)
+                _write(files, pending)
+            if not published:  # what the files hold (a write the interrupt came at the end of is counted too)
+                held = files.episodes_held()
             print(_interrupted(dataset_id, spec, held, env is not None, published), file=sys.stderr, flush=True)
         interrupt.said = True  # type: ignore[attr-defined]  # what was kept is said: callers need not say more
         raise
