@@ -193,11 +193,18 @@ def test_ctrl_c_that_python_drops_in_a_destructor_still_stops_the_collection(mon
             Disconnecting()  # dropped at once: its __del__ runs here
         return result
 
+    # Ctrl-C as a terminal gives it to a new Python program, whatever earlier tests in this process left behind.
+    previous_handler = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous_mask = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     dropped = []
     monkeypatch.setattr(sys, "unraisablehook", lambda unraisable: dropped.append(unraisable.exc_type))
     monkeypatch.setattr(collection_module, "_run_episode", episode_with_a_collection)
-    with pytest.raises(KeyboardInterrupt):
-        collect_dataset(CollectionSpec(policy="random", n_episodes=4), progress_bar=False)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            collect_dataset(CollectionSpec(policy="random", n_episodes=4), progress_bar=False)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+        signal.signal(signal.SIGINT, previous_handler)
     assert dropped == [KeyboardInterrupt]  # Python did drop it
     last_line = capsys.readouterr().err.strip().splitlines()[-1]
     assert last_line == "interrupted: 2 of 4 episodes of sb3cql/Panda-v0/random-v0 kept; the same command resumes"

@@ -202,7 +202,7 @@ def test_ctrl_c_while_the_dataset_is_collected_leaves_no_run_folder(zoo):
     logs = zoo.root / "logs-interrupted"
     status, stdout, stderr = interrupt(
         zoo, ["--algo", "cql", "--env", "Panda-v0", "-f", str(logs), *TINY],
-        ready=lambda: any((zoo.root / "empty-datasets").rglob("*.hdf5")), env=env)  # fmt: skip
+        ready=lambda: any((zoo.root / "empty-datasets").rglob("*.pkl")), env=env)  # fmt: skip
     assert status == 130 and "Traceback" not in stderr
     last_line = stderr.strip().splitlines()[-1]
     assert last_line.startswith("interrupted: ") and "episodes of sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0 kept" in last_line
