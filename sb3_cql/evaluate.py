@@ -35,7 +35,6 @@ import dataclasses
 import inspect
 import itertools
 import re
-import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -52,7 +51,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import envs
 from envs.pd_controller import closing_angles
 from envs.robot import ACTION_MODES
-from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
+from sb3_cql.interrupts import exit_status, run_command
 
 #: The command's name in its messages.
 PROG = "python -m sb3_cql.evaluate"
@@ -433,9 +432,4 @@ def _evaluate(
 
 
 if __name__ == "__main__":
-    started()  # the package quieted Ctrl-C during the start-up imports (sb3_cql.interrupts); main says what it kept
-    terminate_as_interrupt()
-    try:
-        main()
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C prints no traceback either
+    run_command(main)

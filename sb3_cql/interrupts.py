@@ -87,3 +87,15 @@ def die_with_parent(parent: int) -> None:
     ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:  # it died before the prctl
         os._exit(1)
+
+
+def run_command(main: Any) -> None:
+    """Run a command line's ``main()`` as one of :data:`COMMANDS` runs it: Ctrl-C raises ``KeyboardInterrupt`` again
+    (:func:`started`) and SIGTERM too (:func:`terminate_as_interrupt`), for ``main`` to say what it kept; once it
+    returns or fails, a second Ctrl-C while the program exits prints no traceback either."""
+    started()
+    terminate_as_interrupt()
+    try:
+        main()
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

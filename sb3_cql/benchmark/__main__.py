@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import signal
 import sys
 
 import envs
@@ -35,7 +34,7 @@ from sb3_cql.benchmark.runner import (
     UnitsFailed,
     run_protocol,
 )
-from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
+from sb3_cql.interrupts import exit_status, run_command
 
 #: ``--quick``: training steps, evaluation every ... steps over ... episodes, checkpoints, final episodes.
 QUICK = {"n_timesteps": 2000, "eval_freq": 1000, "eval_episodes": 5, "save_freq": 1000, "episodes": 20}
@@ -132,9 +131,4 @@ def make_outputs(results: ResultsFolder, tasks: list[str], filmstrips: bool = Tr
 
 
 if __name__ == "__main__":
-    started()  # the package quieted Ctrl-C during the start-up imports (sb3_cql.interrupts); main says what it kept
-    terminate_as_interrupt()
-    try:
-        main()
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C prints no traceback either
+    run_command(main)

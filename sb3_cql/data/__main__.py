@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 
 import gymnasium
@@ -29,7 +28,7 @@ from sb3_cql.cluster import ClusterError
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset, mix_datasets
 from sb3_cql.data.collection import WRITE_EVERY, model_action_mode
 from sb3_cql.data.ids import POLICIES, dataset_path
-from sb3_cql.interrupts import exit_status, started, terminate_as_interrupt
+from sb3_cql.interrupts import exit_status, run_command
 
 PROG = "python -m sb3_cql.data"
 
@@ -133,9 +132,4 @@ def _run(args: argparse.Namespace) -> None:
 
 
 if __name__ == "__main__":
-    started()
-    terminate_as_interrupt()
-    try:
-        main()
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # exiting: a second Ctrl-C prints no traceback either
+    run_command(main)
