@@ -11,7 +11,7 @@ if getattr(sys, "argv", [""])[:1] == ["-m"]:  # `python -m sb3_cql....` importin
 
 
 def __getattr__(name: str):
-    # CQL and BC load torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
+    # CQL, IQL and BC load torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
     # collection workers start without them.
     if name == "CQL":
         from sb3_cql.cql import CQL
@@ -21,7 +21,11 @@ def __getattr__(name: str):
         from sb3_cql.bc import BC
 
         return BC
+    if name == "IQL":
+        from sb3_cql.iql import IQL
+
+        return IQL
     raise AttributeError(f"module 'sb3_cql' has no attribute {name!r}")
 
 
-__all__ = ["BC", "CQL", "__version__"]
+__all__ = ["BC", "CQL", "IQL", "__version__"]

@@ -13,7 +13,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import update_learning_rate
 
-from sb3_cql.common import OfflineSAC, behaviour_cloning_loss
+from sb3_cql.common import OfflineSAC, SettingError, behaviour_cloning_loss
+from sb3_cql.common.offline import KeywordError, check_keywords
 
 if TYPE_CHECKING:
     from minari import MinariDataset
@@ -32,6 +33,12 @@ class BC(OfflineSAC):
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
     :param env: the environment (for its spaces, and the default evaluation env).
     :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer`` (see :class:`~sb3_cql.common.OfflineSAC`).
+    :param min_return: filtered imitation: load only the dataset's episodes whose return is at least this
+        (``1.0`` on the Panda tasks, whose reward is 1 at success only: the successful episodes), through Minari's
+        ``filter_episodes`` (:func:`sb3_cql.data.selection.select_episodes`); a Minari dataset or id only. ``None``:
+        every episode.
+    :param top_fraction: filtered imitation: load only this share of the episodes (of those ``min_return`` keeps),
+        those of the highest returns; a Minari dataset or id only. ``None``: every episode.
     :param learning_rate: learning rate of the actor.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
     :param batch_size: minibatch size of each gradient step.
@@ -61,6 +68,8 @@ class BC(OfflineSAC):
         policy: str | type[BasePolicy],
         env: GymEnv | str,
         dataset: MinariDataset | str | ReplayBuffer | None = None,
+        min_return: float | None = None,
+        top_fraction: float | None = None,
         learning_rate: float | Schedule = 1e-3,
         buffer_size: int = 2_000_000,
         batch_size: int = 256,
@@ -81,6 +90,7 @@ class BC(OfflineSAC):
     ) -> None:
         if sac_kwargs:
             _refuse_sac_keywords(sac_kwargs)
+        self.min_return, self.top_fraction = min_return, top_fraction
         super().__init__(
             policy,
             env,
@@ -102,6 +112,39 @@ class BC(OfflineSAC):
             device=device,
             _init_setup_model=_init_setup_model,
         )
+
+    def _check_settings(self) -> None:
+        """OfflineSAC's checks, and the episode selection's."""
+        super()._check_settings()
+        if self.min_return is None and self.top_fraction is None:
+            return
+        from sb3_cql.data.selection import check_selection  # (the data package loads Minari: only when selecting)
+
+        problem = check_selection(self.min_return, self.top_fraction)
+        if problem is not None:
+            raise SettingError(problem)
+        if self.dataset is not None and not isinstance(self.dataset, str) and not _is_minari(self.dataset):
+            raise SettingError("min_return and top_fraction select episodes of a Minari dataset (or id): a replay buffer "
+                               "has no episodes to select; filter the data before filling it")  # fmt: skip
+
+    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        """OfflineSAC's, with only the episodes ``min_return`` and ``top_fraction`` select."""
+        if self.min_return is None and self.top_fraction is None:
+            return super()._fill_from_dataset(dataset)
+        from sb3_cql.data.selection import select_episodes
+
+        if isinstance(dataset, str):
+            from sb3_cql.data.collection import ensure_dataset  # the tasks load only to collect a standard dataset
+
+            dataset = ensure_dataset(dataset)
+        try:
+            selected = select_episodes(dataset, self.min_return, self.top_fraction)  # type: ignore[arg-type]
+        except ValueError as error:
+            raise SettingError(str(error)) from None
+        if self.verbose >= 1:
+            print(f"BC imitates {selected.total_episodes} of the {dataset.total_episodes} episodes of "  # type: ignore[union-attr]
+                  f"{dataset.spec.dataset_id} (min_return={self.min_return}, top_fraction={self.top_fraction})")  # type: ignore[union-attr]  # fmt: skip
+        return super()._fill_from_dataset(selected)
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """``gradient_steps`` Adam steps on the behaviour-cloning loss of the actor."""
@@ -126,6 +169,10 @@ def _refuse_sac_keywords(keywords: dict[str, Any]) -> None:
     sac = set(inspect.signature(SAC.__init__).parameters)
     names = ", ".join(sorted(keywords))
     if set(keywords) <= sac:
-        raise TypeError(f"BC does not take {names}: BC trains its actor on the data's actions, without SAC's critics, "
+        raise KeywordError(f"BC does not take {names}: BC trains its actor on the data's actions, without SAC's critics, "
                         f"entropy coefficient or interaction with the env (CQL takes them)")  # fmt: skip
-    raise TypeError(f"BC got unexpected keyword arguments: {names}")
+    check_keywords("BC", keywords, inspect.signature(BC.__init__).parameters)
+
+
+def _is_minari(dataset: Any) -> bool:
+    return type(dataset).__name__ == "MinariDataset"  # (a check that does not import Minari)

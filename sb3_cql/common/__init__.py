@@ -9,7 +9,7 @@ from sb3_cql.common.buffers import (
     with_n_step_returns,
 )
 from sb3_cql.common.noise import HeldActionNoise, pink_action_noise
-from sb3_cql.common.offline import OfflineSAC, SettingError, behaviour_cloning_loss
+from sb3_cql.common.offline import OfflineSAC, SettingError, TrainingDivergedError, behaviour_cloning_loss
 
 __all__ = [
     "ActionChunkReplayBuffer",
@@ -19,6 +19,7 @@ __all__ = [
     "ReturnToGoReplayBuffer",
     "ReturnToGoSamples",
     "SettingError",
+    "TrainingDivergedError",
     "behaviour_cloning_loss",
     "pink_action_noise",
     "returns_to_go",

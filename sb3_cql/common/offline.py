@@ -3,6 +3,7 @@ buffer: the base of :class:`~sb3_cql.CQL` and :class:`~sb3_cql.BC`."""
 
 from __future__ import annotations
 
+import inspect
 import io
 import numbers
 import os
@@ -34,6 +35,7 @@ from sb3_cql.common.buffers import (
     with_n_step_returns,
 )
 from sb3_cql.common.policies import FROM_SAC, CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten, OfflinePolicy
+from sb3_cql.interrupts import interrupts_deferred
 
 if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard dataset's collection: neither on import.
     from minari import MinariDataset
@@ -44,6 +46,24 @@ SelfOfflineSAC = TypeVar("SelfOfflineSAC", bound="OfflineSAC")
 class SettingError(ValueError):
     """A keyword argument of an offline algorithm (given to its constructor or to ``load``) that it cannot train with,
     or a replay buffer given as its ``dataset`` that it cannot train on; the message names the keyword and the value."""
+
+
+class KeywordError(SettingError, TypeError):
+    """A keyword argument an offline algorithm does not take: a misspelt one, or SAC's for what it does not train. A
+    ``TypeError`` too, as Python's own for an unexpected keyword."""
+
+
+def check_keywords(algorithm: str, given: Iterable[str], known: Iterable[str]) -> None:
+    """:class:`KeywordError` naming the keywords of ``given`` that are not ``known``, each with the known one it is
+    closest to."""
+    import difflib
+
+    known = sorted(known)
+    unknown = sorted(set(given) - set(known))
+    if unknown:
+        guesses = [f"{name} (did you mean {close[0]}?)" if (close := difflib.get_close_matches(name, known, 1)) else name
+                   for name in unknown]  # fmt: skip
+        raise KeywordError(f"{algorithm} got unexpected keyword arguments: {', '.join(guesses)}")
 
 
 def is_count(value: Any, minimum: int) -> bool:
@@ -57,18 +77,66 @@ def check_count(name: str, value: Any, minimum: int) -> None:
         raise SettingError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
-def check_fraction(name: str, value: Any) -> None:
-    """:class:`SettingError` unless the setting ``name`` is a number in (0, 1]."""
-    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and 0 < value <= 1):
-        raise SettingError(f"{name} must be in (0, 1], got {value!r}")
+def check_fraction(name: str, value: Any, zero: bool = False) -> None:
+    """:class:`SettingError` unless the setting ``name`` is a number in (0, 1] (in [0, 1] with ``zero``)."""
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if not (number and (value >= 0 if zero else value > 0) and value <= 1):
+        raise SettingError(f"{name} must be in {'[' if zero else '('}0, 1], got {value!r}")
 
 
 def check_non_negative(names_values: Iterable[tuple[str, Any]], strictly: bool = False) -> None:
     """:class:`SettingError` unless each setting is a number >= 0 (> 0 with ``strictly``)."""
     for name, value in names_values:
         number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        if not number or not (value > 0 if strictly else value >= 0):
-            raise SettingError(f"{name} must be a number {'>' if strictly else '>='} 0, got {value!r}")
+        if not number or not np.isfinite(value) or not (value > 0 if strictly else value >= 0):
+            raise SettingError(f"{name} must be a finite number {'>' if strictly else '>='} 0, got {value!r}")
+
+
+def check_finite(names_values: Iterable[tuple[str, Any]]) -> None:
+    """:class:`SettingError` unless each setting is a finite number."""
+    for name, value in names_values:
+        if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and np.isfinite(value)):
+            raise SettingError(f"{name} must be a finite number, got {value!r}")
+
+
+def check_rate(name: str, value: Any) -> None:
+    """:class:`SettingError` unless the learning rate ``name`` is a finite number > 0, or a schedule (a callable of the
+    progress remaining, as SB3's) whose first value is."""
+    if callable(value) and not isinstance(value, numbers.Real):
+        try:
+            first = value(1.0)
+        except Exception as error:
+            raise SettingError(f"{name}: the schedule {value!r} fails at progress 1.0: {error}") from None
+        if not (isinstance(first, numbers.Real) and np.isfinite(first) and first > 0):
+            raise SettingError(f"{name} must be a finite number > 0, got a schedule starting at {first!r}")
+        return
+    check_non_negative([(name, value)], strictly=True)
+
+
+def check_net_arch(net_arch: Any) -> None:
+    """:class:`SettingError` unless ``net_arch`` (a policy keyword) is SB3's: ``None``, a list of layer sizes (integers
+    >= 1), or a dict of such lists (``pi``, ``qf``)."""
+    layers = net_arch.values() if isinstance(net_arch, dict) else [net_arch]
+    for sizes in layers:
+        if sizes is not None and not (isinstance(sizes, (list, tuple)) and all(is_count(size, 1) for size in sizes)):
+            raise SettingError(f"net_arch must be a list of layer sizes (integers >= 1) or a dict of them, got {net_arch!r}")
+
+
+def check_entropy(ent_coef: Any, target_entropy: Any) -> None:
+    """:class:`SettingError` unless SAC's ``ent_coef`` is a finite number >= 0, ``\"auto\"`` or ``\"auto_X\"`` (X > 0, its
+    initial value), and ``target_entropy`` is ``\"auto\"`` or a finite number."""
+    if isinstance(ent_coef, str):
+        initial = ent_coef.partition("_")[2] if ent_coef.startswith("auto_") else "1" if ent_coef == "auto" else ""
+        try:
+            valid = np.isfinite(float(initial)) and float(initial) > 0
+        except ValueError:
+            valid = False
+        if not valid:
+            raise SettingError(f"ent_coef must be a finite number >= 0, 'auto' or 'auto_X' with X > 0, got {ent_coef!r}")
+    else:
+        check_non_negative([("ent_coef", ent_coef)])
+    if not (isinstance(target_entropy, str) and target_entropy == "auto"):
+        check_finite([("target_entropy", target_entropy)])
 
 
 def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None:
@@ -91,6 +159,30 @@ def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None
             index, env, element = bad[0]
             return name, int(index), int(env), float(filled[index, env, element])
     return None
+
+
+class TrainingDivergedError(FloatingPointError, ValueError):
+    """A training loss became NaN or infinite. A ``ValueError`` too, so that RL-Zoo3's tuning prunes the trial
+    (it prunes on ``ValueError``) instead of ending the whole study."""
+
+
+def finite_loss_value(loss: th.Tensor, description: str, step: int, hint: str) -> float:
+    """``loss`` as a number; :class:`TrainingDivergedError` naming ``description`` (``"CQL's critic loss"``), the
+    gradient ``step`` and a ``hint`` of what to try if it is NaN or infinite."""
+    value = loss.item()
+    if not np.isfinite(value):
+        raise TrainingDivergedError(f"{description} is {value} at gradient step {step}: training diverged ({hint})")
+    return value
+
+
+def shaped_rewards(replay_data: Any, reward_scale: float, reward_bias: float, gamma: float) -> th.Tensor:
+    """The rewards a critic learns from, ``reward_scale * reward + reward_bias`` at every step; for an n-step sample
+    (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the rewards:
+    ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
+    if replay_data.discounts is None:
+        return reward_scale * replay_data.rewards + reward_bias
+    steps_discount = (1.0 - replay_data.discounts) / (1.0 - gamma)
+    return reward_scale * replay_data.rewards + reward_bias * steps_discount
 
 
 def behaviour_cloning_loss(mean_actions: th.Tensor, actions: th.Tensor) -> th.Tensor:
@@ -116,10 +208,13 @@ class OfflineSAC(SAC):
     ``predict`` applies the same normalisation after ``save``/``load``. :meth:`load` does not reload the data: a
     loaded model predicts with a one-transition buffer, and refills it from its dataset id when it trains again.
 
-    A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative step count, a ``batch_size`` below
-    1, ...; also one given to :meth:`load`) is a :class:`SettingError` naming the keyword and its value, raised when
-    the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity. :meth:`save`
-    and :meth:`save_replay_buffer` leave a file whole or none.
+    A setting training cannot use (``gamma`` or ``tau`` outside [0, 1], a learning rate that is not a finite number
+    > 0, a negative ``ent_coef``, a NaN ``target_entropy``, a layer of 0 units, a negative step count, a ``batch_size``
+    below 1, ...; also one given to :meth:`load`) is a :class:`SettingError` naming the keyword and its value, raised
+    when the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity; a keyword
+    it does not take is a :class:`KeywordError` naming the closest one. :meth:`save` and :meth:`save_replay_buffer`
+    leave a file whole or none. Ctrl-C during :meth:`learn` offline acts between gradient steps: the model is the one
+    after its last whole step.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
     :param env: the environment (for its spaces, and the default evaluation env).
@@ -146,6 +241,10 @@ class OfflineSAC(SAC):
         (TD3's exploration; SB3's ``NormalActionNoise``, or the zoo's ``noise_type``/``noise_std``) instead of a sample
         of the policy (SAC's). A clone's samples rarely hold a grasp where its deterministic action does
         (the documentation's *What we learned* page, *How a fine-tuned policy explores*).
+    :param best_of_n: act by ranking: the policy draws ``best_of_n`` candidate actions (or chunks) from the actor at
+        each decision and takes the one its critics value most (:class:`~sb3_cql.common.policies.OfflinePolicy`);
+        saved with the model, so every evaluation acts that way; ``load(path, best_of_n=N)`` changes it. ``1`` (the
+        default): the actor's own action.
     :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``action_noise``, ``seed``, ...).
     """
 
@@ -173,11 +272,15 @@ class OfflineSAC(SAC):
         learning_starts: int = 0,
         deterministic_rollouts: bool = False,
         action_chunk: int = 1,
+        best_of_n: int = 1,
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
         _refuse_unsupported(kwargs)
+        check_keywords(type(self).__name__, kwargs, inspect.signature(SAC.__init__).parameters)
         check_count("action_chunk", action_chunk, 1)
+        check_count("best_of_n", best_of_n, 1)
+        self.best_of_n = best_of_n
         if action_chunk > 1 and kwargs.get("n_steps", 1) not in (1, action_chunk):
             raise SettingError(f"n_steps={kwargs['n_steps']} with action_chunk={action_chunk}: a chunk's backup spans "
                                f"its {action_chunk} steps (n_steps is the chunk's length)")  # fmt: skip
@@ -222,8 +325,13 @@ class OfflineSAC(SAC):
         """:class:`SettingError` for a setting outside what training can use, where SB3 would train on without a word
         or fail later with another message: run when the model is set up, so that it checks the keywords given to
         ``load`` (a fine-tuning's) too. Subclasses add theirs."""
-        check_fraction("gamma", self.gamma)
-        check_fraction("tau", self.tau)
+        check_fraction("gamma", self.gamma, zero=True)
+        check_fraction("tau", self.tau, zero=True)  # 0: a target network that stays as it was made (SAC's too)
+        check_rate("learning_rate", self.learning_rate)
+        if self.actor_learning_rate is not None:
+            check_rate("actor_learning_rate", self.actor_learning_rate)
+        check_entropy(self.ent_coef, self.target_entropy)
+        check_net_arch((self.policy_kwargs or {}).get("net_arch"))
         check_count("batch_size", self.batch_size, 1)
         check_count("learning_starts", self.learning_starts, 0)
         if self.gradient_steps != -1 and not is_count(self.gradient_steps, 0):
@@ -235,6 +343,7 @@ class OfflineSAC(SAC):
         check_count("buffer_size", self.buffer_size, 1)
         check_count("online_buffer_size", self.online_buffer_size, 1)
         check_count("action_chunk", self.action_chunk, 1)
+        check_count("best_of_n", getattr(self, "best_of_n", 1), 1)
         fraction = self.online_fraction
         if fraction is not None and not (isinstance(fraction, numbers.Real) and 0.0 <= fraction <= 1.0):
             raise SettingError(f"online_fraction must be None (offline training) or in [0, 1], got {fraction!r}")
@@ -252,6 +361,12 @@ class OfflineSAC(SAC):
         # A model saved with SAC's policy classes loads into ours (the same parameters).
         self.policy_class = self.policy_from_sac.get(self.policy_class, self.policy_class)  # type: ignore[arg-type]
         chunked, auto_entropy = getattr(self, "action_chunk", 1) > 1, self.target_entropy == "auto"
+        best_of_n = getattr(self, "best_of_n", 1)
+        if best_of_n > 1 or "best_of_n" in self.policy_kwargs:  # also a changed N given to load()
+            if not issubclass(self.policy_class, OfflinePolicy):
+                raise SettingError(f"best_of_n > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
+                                   f"got {self.policy_class.__name__}")  # fmt: skip
+            self.policy_kwargs["best_of_n"] = best_of_n
         if chunked:
             if not issubclass(self.policy_class, OfflinePolicy):
                 raise SettingError(f"action_chunk > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
@@ -315,8 +430,9 @@ class OfflineSAC(SAC):
         if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
             observations = self.replay_buffer.observations[:size].reshape(size, -1)
             mean, std = observations.mean(axis=0), observations.std(axis=0)
-            for module in (self.actor, self.critic, self.critic_target):
-                module.features_extractor.set_statistics(mean, std)
+            for module in self.policy.modules():  # the actor's, the critics' and any other network's (IQL's value)
+                if isinstance(module, NormalizedFlatten):
+                    module.set_statistics(mean, std)
 
     def _data_observation_space(self) -> spaces.Space:
         """The env's observation space as the data hold it: before SB3's ``VecTransposeImage``, which makes
@@ -363,8 +479,9 @@ class OfflineSAC(SAC):
         )
         callback.on_training_start(locals(), globals())
         while self.num_timesteps < total_timesteps:
-            self.train(gradient_steps=1, batch_size=self.batch_size)
-            self.num_timesteps += 1
+            with interrupts_deferred():  # Ctrl-C between gradient steps: a saved model is one after a whole step
+                self.train(gradient_steps=1, batch_size=self.batch_size)
+                self.num_timesteps += 1
             self._update_current_progress_remaining(self.num_timesteps, total_timesteps)
             callback.update_locals(locals())
             if not callback.on_step():

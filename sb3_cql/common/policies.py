@@ -3,6 +3,7 @@ features extractor and optional action chunks (:class:`OfflinePolicy`)."""
 
 from __future__ import annotations
 
+import hashlib
 from typing import Any
 
 import numpy as np
@@ -39,17 +40,30 @@ class OfflinePolicy(SACPolicy):
     With ``critic_layer_norm``, every hidden layer of the Q-networks is followed by a LayerNorm before its activation,
     as RLPD's critics (Ball et al. 2023), which keeps the values of states far from the data from diverging.
 
+    With ``best_of_n`` > 1 the policy acts by ranking (SHARSA's best-of-N, Park et al. 2025): at each decision it draws
+    ``best_of_n`` candidate actions (or chunks) from the actor's distribution (:meth:`candidate_actions`) and takes the
+    one the critics value most (the minimum of the twins), :meth:`best_of_n_actions`. With ``deterministic=True`` the
+    candidates' noise is drawn from a generator seeded by the observation's bytes, so the same observation gives the
+    same action whatever came before (evaluations replay exactly); with ``deterministic=False`` from torch's global
+    generator.
+
     :param action_chunk: actions per chunk (1: SAC's policy, one action a state).
     :param critic_layer_norm: LayerNorm after each hidden layer of the Q-networks.
+    :param best_of_n: candidate actions ranked by the critics at each decision (1: the actor's own action).
     :param args: SAC's ``SACPolicy`` arguments (``observation_space``, ``action_space``, ``lr_schedule``, ...).
     :param kwargs: SAC's ``SACPolicy`` keywords (``net_arch``, ...).
     """
 
-    def __init__(self, *args: Any, action_chunk: int = 1, critic_layer_norm: bool = False, **kwargs: Any) -> None:
+    def __init__(
+        self, *args: Any, action_chunk: int = 1, critic_layer_norm: bool = False, best_of_n: int = 1, **kwargs: Any
+    ) -> None:
         if action_chunk < 1:
             raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
+        if best_of_n < 1:
+            raise ValueError(f"best_of_n must be >= 1, got {best_of_n}")
         # Both read by _build, which SACPolicy's __init__ calls.
         self.action_chunk, self.critic_layer_norm = action_chunk, critic_layer_norm
+        self.best_of_n = best_of_n
         super().__init__(*args, **kwargs)
 
     def make_critic(self, features_extractor: BaseFeaturesExtractor | None = None) -> ContinuousCritic:
@@ -78,7 +92,44 @@ class OfflinePolicy(SACPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        return {**data, "action_chunk": self.action_chunk, "critic_layer_norm": self.critic_layer_norm}
+        return {
+            **data,
+            "action_chunk": self.action_chunk,
+            "critic_layer_norm": self.critic_layer_norm,
+            "best_of_n": self.best_of_n,
+        }
+
+    def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
+        if self.best_of_n == 1:
+            return super()._predict(observation, deterministic)
+        return self.best_of_n_actions(observation, self.best_of_n, deterministic)
+
+    def best_of_n_actions(self, observation: th.Tensor | dict[str, th.Tensor], n: int, deterministic: bool) -> th.Tensor:
+        """For each observation of the batch, the best of ``n`` :meth:`candidate_actions` by the critics' value (the
+        minimum of the twins): ``(batch, action_dim)`` in [-1, 1] (a whole chunk with action chunks).
+
+        :param observation: a batch of observations (tensors, as ``_predict`` receives them).
+        :param n: candidates per observation.
+        :param deterministic: draw the candidates' noise from generators seeded by each observation's bytes (the same
+            observation, the same action), else from torch's global generator.
+        """
+        mean_actions, log_std, _ = self.actor.get_action_dist_params(observation)
+        batch_size, action_dim = mean_actions.shape
+        if deterministic:
+            noise = th.stack([th.randn(n, action_dim, generator=_generator(seed)) for seed in _observation_seeds(observation)])
+            noise = noise.to(mean_actions.device).reshape(batch_size * n, action_dim)
+        else:
+            noise = th.randn(batch_size * n, action_dim, device=mean_actions.device)
+        candidates = self.candidate_actions(mean_actions.repeat_interleave(n, 0), log_std.repeat_interleave(n, 0), noise)
+        repeated = map_observations(lambda tensor: tensor.repeat_interleave(n, dim=0), observation)
+        q_values = th.cat(self.critic(repeated, candidates), dim=1).min(dim=1).values.reshape(batch_size, n)
+        best = q_values.argmax(dim=1)
+        return candidates.reshape(batch_size, n, action_dim)[th.arange(batch_size, device=best.device), best]
+
+    def candidate_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tensor) -> th.Tensor:
+        """Actions of the actor's distribution for standard normal ``noise``: SAC's squashed Gaussian,
+        ``tanh(mean + exp(log_std) * noise)``. A policy whose actor fits another distribution overrides it."""
+        return th.tanh(mean_actions + log_std.exp() * noise)
 
     def predict(
         self,
@@ -111,6 +162,29 @@ class OfflinePolicy(SACPolicy):
         actions = chunks[np.arange(n_envs), index]
         index = index + 1
         return (actions if vectorized else actions[0]), (chunks, index)
+
+
+def _observation_seeds(observation: th.Tensor | dict[str, th.Tensor]) -> list[int]:
+    """A 63-bit seed per observation of the batch, from its bytes (of every key, for Dict observations)."""
+    parts = [observation[key] for key in sorted(observation)] if isinstance(observation, dict) else [observation]
+    rows = [part.detach().cpu().reshape(len(part), -1).numpy() for part in parts]
+    seeds = []
+    for index in range(len(rows[0])):
+        digest = hashlib.blake2b(b"".join(row[index].tobytes() for row in rows), digest_size=8).digest()
+        seeds.append(int.from_bytes(digest, "little") >> 1)
+    return seeds
+
+
+def _generator(seed: int) -> th.Generator:
+    generator = th.Generator()
+    generator.manual_seed(seed)
+    return generator
+
+
+def map_observations(function: Any, observation: th.Tensor | dict[str, th.Tensor]) -> th.Tensor | dict[str, th.Tensor]:
+    if isinstance(observation, dict):
+        return {key: function(tensor) for key, tensor in observation.items()}
+    return function(observation)
 
 
 def _batch_of_one(observation: np.ndarray | dict[str, np.ndarray]) -> np.ndarray | dict[str, np.ndarray]:

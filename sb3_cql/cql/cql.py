@@ -17,7 +17,14 @@ from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
 from sb3_cql.common import OfflineSAC, ReturnToGoReplayBuffer, behaviour_cloning_loss
-from sb3_cql.common.offline import SettingError, check_count, check_non_negative
+from sb3_cql.common.offline import (
+    SettingError,
+    TrainingDivergedError,  # noqa: F401 (importable from here, where it was first defined)
+    check_count,
+    check_non_negative,
+    finite_loss_value,
+    shaped_rewards,
+)
 from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLActor, CQLCritic, MlpPolicy, MultiInputPolicy
 
 if TYPE_CHECKING:
@@ -25,11 +32,6 @@ if TYPE_CHECKING:
 
 #: Bound of the learned Lagrange multiplier, as in the reference implementation.
 MAX_ALPHA_PRIME = 1e6
-
-
-class TrainingDivergedError(FloatingPointError, ValueError):
-    """The critic loss became NaN or infinite. A ``ValueError`` too, so that RL-Zoo3's tuning prunes the trial
-    (it prunes on ``ValueError``) instead of ending the whole study."""
 
 
 class CQL(OfflineSAC):
@@ -260,6 +262,11 @@ class CQL(OfflineSAC):
         check_count("cql_n_actions", self.cql_n_actions, 1)
         check_non_negative([("cql_alpha", self.cql_alpha), ("actor_bc_weight", self.actor_bc_weight)])
         check_non_negative([("cql_temperature", self.cql_temperature)], strictly=True)
+        from sb3_cql.common.offline import check_finite
+
+        check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
+        if self.cql_target_action_gap is not None:
+            check_finite([("cql_target_action_gap", self.cql_target_action_gap)])
         if self.bc_learning_rate is not None:
             check_non_negative([("bc_learning_rate", self.bc_learning_rate)], strictly=True)
         if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
@@ -335,7 +342,7 @@ class CQL(OfflineSAC):
 
             detached_policy = (policy[0].detach(), policy[1].detach())
             current_q_values, gaps = self.conservative_gaps(replay_data, detached_policy, next_policy, logs)
-            td_loss = 0.5 * sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+            td_loss = self.td_loss(current_q_values, target_q_values)
             conservative_loss = self.conservative_loss(gaps, logs)
             critic_loss = td_loss + conservative_loss
             critic_loss_value = self.check_critic_loss(critic_loss)
@@ -368,10 +375,7 @@ class CQL(OfflineSAC):
         """The rewards the critics learn from, ``reward_scale * reward + reward_bias`` at every step; for an n-step
         sample (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the
         rewards: ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
-        if replay_data.discounts is None:
-            return self.reward_scale * replay_data.rewards + self.reward_bias
-        steps_discount = (1.0 - replay_data.discounts) / (1.0 - self.gamma)
-        return self.reward_scale * replay_data.rewards + self.reward_bias * steps_discount
+        return shaped_rewards(replay_data, self.reward_scale, self.reward_bias, self.gamma)
 
     def compute_target(
         self,
@@ -476,31 +480,43 @@ class CQL(OfflineSAC):
             return q_policy
         return th.maximum(q_policy, replay_data.returns_to_go)  # type: ignore[attr-defined]
 
+    def td_loss(self, current_q_values: list[th.Tensor], target_q_values: th.Tensor) -> th.Tensor:
+        """The TD loss of the critics: each critic's mean squared error to the target, summed over the critics, as
+        the reference implementations weigh it against the conservative term (tinkoff-ai/CORL's
+        ``qf1_loss + qf2_loss``, the CQL paper's code). (SAC's own ``0.5 * sum`` would halve the TD loss beside the
+        conservative term, and so double what ``cql_alpha`` means.)"""
+        return sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+
     def conservative_loss(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
-        """``cql_alpha`` times the gaps; with ``cql_target_action_gap``, their Lagrangian
-        ``alpha' * (cql_alpha * gap - target)`` after a dual step on the multiplier ``alpha'``."""
-        terms = [self.cql_alpha * gap for gap in gaps]
+        """The term added to the TD loss: ``cql_alpha`` times each critic's gap, summed over the critics; with
+        ``cql_target_action_gap``, tinkoff-ai/CORL's Lagrangian ``alpha' * cql_alpha * (gap - cql_target_action_gap)``
+        per critic, with ``alpha'`` as it was before this step's dual update (:meth:`update_alpha_prime`, made
+        here)."""
         if self.log_alpha_prime is None or self.alpha_prime_optimizer is None:
-            return sum(terms)
+            return sum(self.cql_alpha * gap for gap in gaps)
+        alpha_prime = self.update_alpha_prime(gaps, logs)
+        return sum(alpha_prime * self.cql_alpha * (gap - self.cql_target_action_gap) for gap in gaps)
+
+    def update_alpha_prime(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
+        """One dual step on the Lagrange multiplier ``alpha' = clamp(exp(log_alpha_prime), 0, 1e6)``: Adam on
+        ``-0.5 * sum(alpha' * cql_alpha * (gap - cql_target_action_gap))`` over the critics (the gaps detached), so
+        ``alpha'`` grows while the gaps exceed the target and shrinks below it, as tinkoff-ai/CORL's. Returns
+        ``alpha'`` before the step, detached. Logs ``train/cql_alpha_prime`` and ``train/cql_alpha_prime_loss``."""
+        assert self.log_alpha_prime is not None and self.alpha_prime_optimizer is not None
         alpha_prime = self.log_alpha_prime.exp().clamp(0.0, MAX_ALPHA_PRIME)
-        # Dual ascent: the multiplier grows while the gap exceeds its target.
-        alpha_prime_loss = -0.5 * sum(alpha_prime * (term.detach() - self.cql_target_action_gap) for term in terms)
+        excess = [self.cql_alpha * (gap.detach() - self.cql_target_action_gap) for gap in gaps]
+        alpha_prime_loss = -0.5 * sum(alpha_prime * term for term in excess)
         self.alpha_prime_optimizer.zero_grad()
         alpha_prime_loss.backward()
         self.alpha_prime_optimizer.step()
         _append(logs, "train/cql_alpha_prime", alpha_prime.item())
         _append(logs, "train/cql_alpha_prime_loss", alpha_prime_loss.item())
-        return sum(alpha_prime.detach() * (term - self.cql_target_action_gap) for term in terms)
+        return alpha_prime.detach()
 
     def check_critic_loss(self, critic_loss: th.Tensor) -> float:
         """The critic loss as a number; :class:`TrainingDivergedError` if it is NaN or infinite."""
-        value = critic_loss.item()
-        if not math.isfinite(value):
-            raise TrainingDivergedError(
-                f"CQL's critic loss is {value} at gradient step {self.num_timesteps + 1}: training diverged (try a "
-                f"lower learning_rate, reward scaling or cql_target_action_gap)"
-            )
-        return value
+        hint = "try a lower learning_rate, reward scaling or cql_target_action_gap"
+        return finite_loss_value(critic_loss, "CQL's critic loss", self.num_timesteps + 1, hint)
 
     # The actor loss.
 
@@ -553,14 +569,19 @@ class CQL(OfflineSAC):
         replay_data: ReplayBufferSamples,
         logs: dict[str, list[float]],
     ) -> th.Tensor:
-        """With ``actor_bc_weight``, TD3+BC's anchor: SAC's ``actor_loss`` divided by the batch's mean ``|Q|``
-        (detached: the Q term on a scale of 1 whatever the rewards) plus ``actor_bc_weight`` times the imitation of
-        the data by the actor's ``mean_actions``; ``actor_loss`` unchanged without it."""
+        """With ``actor_bc_weight``, TD3+BC's anchor on SAC's ``actor_loss`` (``mean(ent_coef * log_prob - Q)``): the
+        Q term divided by the batch's mean ``|Q|`` (detached: on a scale of 1 whatever the rewards), as TD3+BC
+        normalises Q, the entropy term left as SAC weighs it (``ent_coef`` is tuned against the target entropy at that
+        weight), plus ``actor_bc_weight`` times the imitation of the data by the actor's ``mean_actions``:
+        ``mean(ent_coef * log_prob) - mean(Q) / mean(|Q|) + actor_bc_weight * bc``. ``actor_loss`` unchanged
+        without it."""
         if self.actor_bc_weight <= 0:
             return actor_loss
         bc_loss = behaviour_cloning_loss(mean_actions, replay_data.actions)
         _append(logs, "train/actor_bc_loss", bc_loss.item())
-        return actor_loss / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
+        q_term = min_qf_pi.mean()
+        entropy_term = actor_loss + q_term  # actor_loss is mean(ent_coef * log_prob) - q_term
+        return entropy_term - q_term / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
 
     def in_warm_start(self) -> bool:
         """Whether the next gradient step is one of the first ``bc_steps`` of the model's training. Counted in gradient

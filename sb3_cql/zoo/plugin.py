@@ -1,5 +1,5 @@
-"""What the package adds to RL-Zoo3: ``cql`` and ``bc`` in ``ALGOS``, the Panda tasks, the CQL search space, and our
-``hyperparams/`` files as the default config of our algorithms and tasks.
+"""What the package adds to RL-Zoo3: ``cql``, ``bc`` and ``iql`` in ``ALGOS``, the Panda tasks, the CQL and IQL
+search spaces, and our ``hyperparams/`` files as the default config of our algorithms and tasks.
 
 :func:`extend` is called by :mod:`sb3_cql.zoo.hook` right after each zoo module in ``hook.TRIGGERS`` is imported;
 ``import sb3_cql.zoo.plugin`` extends whichever of them are already loaded and installs the hook for the others.
@@ -27,7 +27,7 @@ from typing import Any, NamedTuple, NoReturn
 #: The algorithm the package adds to the zoo, with its search space.
 ALGO = "cql"
 #: Every algorithm the package adds: our config file is their default config on any env.
-ALGOS = (ALGO, "bc")
+ALGOS = (ALGO, "bc", "iql")
 #: ``train.py``'s defaults of ``--eval-freq`` and ``--eval-episodes``: a config's ``eval_freq`` / ``n_eval_episodes``
 #: replace them; a value given on the command line (or any other value) wins over the config.
 ZOO_DEFAULT_EVAL_FREQ, ZOO_DEFAULT_EVAL_EPISODES = 25_000, 5
@@ -147,7 +147,18 @@ PINK_SEQ_LEN = 1000
 PROG = "python -m rl_zoo3.train"
 #: Our errors that say what to fix in the command line, the config or the data, as ``(module, class)``: a run ends
 #: on their one line (any other error is a bug, shown with its traceback).
-INPUT_ERRORS = (("sb3_cql.data.replay", "DatasetError"), ("sb3_cql.common.offline", "SettingError"))
+INPUT_ERRORS = (
+    ("sb3_cql.data.replay", "DatasetError"),
+    ("sb3_cql.common.offline", "SettingError"),
+    ("sb3_cql.cql.cql", "TrainingDivergedError"),
+    ("envs.config", "ConfigError"),
+)
+#: The keys of a config (and of ``--hyperparams``) that the zoo takes out before it makes the model: with the
+#: keywords of the algorithm's class, the keys it takes.
+ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback",
+            "monitor_kwargs", "env_kwargs", "noise_type", "noise_std")  # fmt: skip
+#: The hyperparameters whose string values the zoo reads as schedules, ``lin_<initial value>``.
+SCHEDULE_KEYS = ("learning_rate",)
 
 
 def zoo_internal(name: str) -> ZooInternal:
@@ -192,16 +203,20 @@ def _extend_utils(utils: ModuleType) -> None:
     import envs  # noqa: F401  (registers the tasks' gymnasium ids)
     from sb3_cql.bc import BC
     from sb3_cql.cql import CQL
+    from sb3_cql.iql import IQL
 
     utils.ALGOS.setdefault(ALGO, CQL)
     utils.ALGOS.setdefault("bc", BC)
+    utils.ALGOS.setdefault("iql", IQL)
 
 
 def _extend_hyperparams_opt(hyperparams_opt: ModuleType) -> None:
-    from sb3_cql.zoo.search_space import convert_cql_params, sample_cql_params
+    from sb3_cql.zoo.search_space import convert_cql_params, convert_iql_params, sample_cql_params, sample_iql_params
 
     hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault(ALGO, sample_cql_params)
     hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault(ALGO, convert_cql_params)
+    hyperparams_opt.HYPERPARAMS_SAMPLER.setdefault("iql", sample_iql_params)
+    hyperparams_opt.HYPERPARAMS_CONVERTER.setdefault("iql", convert_iql_params)
 
 
 def _given_on_command_line(option: str, argv: list[str] | None = None) -> bool:
@@ -310,6 +325,60 @@ def _fail(message: str) -> NoReturn:
     """End the run on one line, ``python -m rl_zoo3.train: error: ...``, with status 2 (a usage error's)."""
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
     raise SystemExit(2) from None
+
+
+def zoo_parse_error(option: str, item: str, problem: BaseException | str, prog: str = PROG) -> NoReturn:
+    """End a zoo command on one line for a ``KEY:VALUE`` item of ``option`` (``--hyperparams``, ``--env-kwargs``) that
+    the zoo cannot read (it evaluates VALUE as Python), saying what to type instead; status 2. The one place the
+    zoo's parse errors become a line."""
+    key, _, value = item.partition(":")
+    why = f"{type(problem).__name__}: {problem}" if isinstance(problem, BaseException) else problem
+    quoted = shlex.quote(f"{key or 'KEY'}:'{value}'")
+    print(f"{prog}: error: {option} {shlex.quote(item)}: {' '.join(why.split())}; write KEY:VALUE with a Python value: "
+          f"a number as it is ({key or 'batch_size'}:64), a string in quotes inside the shell's ({quoted})",
+          file=sys.stderr)  # fmt: skip
+    raise SystemExit(2)
+
+
+def _store_dict_call(store_dict: type) -> Any:
+    """The zoo's ``StoreDict.__call__`` (``KEY:VALUE`` items, VALUE evaluated as Python) with a value that does not
+    evaluate, or an item without a key, ending the command on :func:`zoo_parse_error`'s line."""
+    call = store_dict.__call__
+
+    @functools.wraps(call)
+    def __call__(self: Any, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+        for item in values:
+            key, separator, value = item.partition(":")
+            if not key or not separator:
+                zoo_parse_error(option_string, item, "not KEY:VALUE", parser.prog)
+            try:
+                eval(value)  # as the zoo does next
+            except Exception as error:
+                zoo_parse_error(option_string, item, error, parser.prog)
+        call(self, parser, namespace, values, option_string)
+
+    __call__._sb3_cql_wrapped = True  # type: ignore[attr-defined]
+    return __call__
+
+
+def _check_hyperparameters(algo: type, hyperparams: dict[str, Any]) -> None:
+    """Before the zoo reads them: a key that neither the zoo nor ``algo`` takes is a
+    :class:`~sb3_cql.common.offline.KeywordError` naming the closest one; a schedule that is neither a number nor
+    ``lin_<initial value>`` is :func:`zoo_parse_error`'s line."""
+    from sb3_cql.common.offline import check_keywords
+
+    check_keywords(algo.__name__, hyperparams, [*inspect.signature(algo.__init__).parameters, *ZOO_KEYS])
+    for key in SCHEDULE_KEYS:
+        value = hyperparams.get(key)
+        if isinstance(value, str):
+            schedule, _, initial = value.partition("_")
+            try:
+                valid = schedule == "lin" and float(initial) > 0
+            except ValueError:
+                valid = False
+            if not valid:
+                zoo_parse_error("--hyperparams", f"{key}:{value!r}", f"{key} must be a number > 0 or a linear schedule "
+                                f"'lin_<initial value>' (e.g. {key}:0.0003, {key}:\"'lin_0.0003'\")")  # fmt: skip
 
 
 def _atomic_saves(model: Any) -> None:
@@ -446,8 +515,11 @@ def _wrap_problems(manager: type) -> list[str]:
 
 def _extend_exp_manager(exp_manager: ModuleType) -> None:
     """Wrap the :data:`ZOO_INTERNALS` methods of ``ExperimentManager``: each calls the zoo's own and adds ours."""
+    from rl_zoo3 import utils as zoo_utils
     from stable_baselines3.common.callbacks import CheckpointCallback
 
+    if not getattr(zoo_utils.StoreDict.__call__, "_sb3_cql_wrapped", False):  # train.py's --hyperparams, --env-kwargs
+        zoo_utils.StoreDict.__call__ = _store_dict_call(zoo_utils.StoreDict)
     manager = exp_manager.ExperimentManager
     problems = _wrap_problems(manager)
     if problems:
@@ -493,6 +565,9 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 self.args.env_kwargs = hyperparams["env_kwargs"]
         if self.algo in ALGOS:
             _read_noise_settings(self, hyperparams)
+            from rl_zoo3.utils import ALGOS as zoo_algos
+
+            _check_hyperparameters(zoo_algos[self.algo], hyperparams)
         return hyperparams, saved_hyperparams
 
     def setup_experiment(self) -> Any:
@@ -551,7 +626,7 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 _load_checkpoint_buffer(model, Path(self.trained_agent))
         # The zoo ends training quietly on Ctrl-C (it catches KeyboardInterrupt) and saves the model: note that it
         # was cut short, to say so after the save.
-        self._sb3_cql_interrupted = False
+        self._sb3_cql_interrupted, self._sb3_cql_start_step = False, model.num_timesteps
 
         def note_and_interrupt(signum: int, frame: Any) -> None:
             self._sb3_cql_interrupted = True
@@ -571,6 +646,12 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 signal.signal(signal.SIGINT, previous)
 
     def save_trained_model(self, model: Any) -> None:
+        if getattr(self, "_sb3_cql_interrupted", False) and model.num_timesteps == self._sb3_cql_start_step:
+            # Ctrl-C before the first step (while the data were loaded or collected): no model to keep.
+            removed = _remove_model_less_folder(self)
+            gone = f", {removed} removed" if removed is not None else ""
+            print(f"interrupted before training started: no model saved{gone}", file=sys.stderr)
+            raise SystemExit(130)
         zoo["save_trained_model"](self, model)
         if self.algo not in ALGOS:
             return

@@ -1,4 +1,5 @@
-"""CQL's Optuna search space for ``python -m rl_zoo3.train --algo cql -optimize`` (the zoo's sampler protocol)."""
+"""CQL's and IQL's Optuna search spaces for ``python -m rl_zoo3.train --algo cql -optimize`` (and ``--algo iql``: the
+zoo's sampler protocol)."""
 
 from __future__ import annotations
 
@@ -53,3 +54,26 @@ def convert_cql_params(params: dict[str, Any]) -> dict[str, Any]:
     if "reward" in hyperparams:  # (studies from before it was sampled)
         hyperparams["reward_scale"], hyperparams["reward_bias"] = REWARDS[hyperparams.pop("reward")]
     return hyperparams
+
+
+def sample_iql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
+    """Sample IQL's expectile, temperature, discount, learning rate, batch size, network size, the critics' rewards,
+    SB3's n-step returns and best-of-N acting."""
+    params = {
+        "expectile": trial.suggest_categorical("expectile", [0.5, 0.7, 0.8, 0.9, 0.95]),
+        "temperature": trial.suggest_float("temperature", 0.5, 30.0, log=True),
+        "gamma": trial.suggest_categorical("gamma", [0.99, 0.995, 0.999]),
+        "learning_rate": trial.suggest_float("learning_rate", 3e-5, 1e-3, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [128, 256, 512]),
+        "net_arch": trial.suggest_categorical("net_arch", list(NET_ARCHS)),
+        "reward": trial.suggest_categorical("reward", list(REWARDS)),
+        "n_steps": trial.suggest_categorical("n_steps", N_STEPS),
+        "best_of_n": trial.suggest_categorical("best_of_n", [1, 8, 32]),
+    }
+    return convert_iql_params(params)
+
+
+def convert_iql_params(params: dict[str, Any]) -> dict[str, Any]:
+    """A trial's raw parameters as IQL keywords (``net_arch`` name -> ``policy_kwargs``, ``reward`` name ->
+    ``reward_scale`` and ``reward_bias``)."""
+    return convert_cql_params(params)

@@ -1,0 +1,300 @@
+"""Implicit Q-Learning (IQL) for offline RL: a critic trained in sample, an actor by advantage-weighted regression."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, Schedule
+from stable_baselines3.common.utils import polyak_update, update_learning_rate
+from torch.nn import functional as F
+
+from sb3_cql.common.offline import (
+    OfflineSAC,
+    SettingError,
+    check_non_negative,
+    finite_loss_value,
+    shaped_rewards,
+)
+from sb3_cql.iql.policies import CnnPolicy, IQLPolicy, MlpPolicy, MultiInputPolicy, ValueNetwork
+
+if TYPE_CHECKING:
+    from minari import MinariDataset
+
+
+def expectile_loss(differences: th.Tensor, expectile: float) -> th.Tensor:
+    """The expectile regression loss of IQL's value, ``mean(|expectile - 1(u < 0)| * u^2)`` over the
+    ``differences`` ``u = Q(s, a) - V(s)``: ``expectile`` 0.5 is the mean squared error, above 0.5 the value
+    approaches the upper expectile of Q over the data's actions (their in-sample maximum as it nears 1)."""
+    weight = th.where(differences < 0, 1.0 - expectile, expectile)
+    return (weight * differences.pow(2)).mean()
+
+
+class IQL(OfflineSAC):
+    """Implicit Q-Learning (Kostrikov, Nair and Levine 2021, https://arxiv.org/abs/2110.06169), trained offline.
+
+    Every loss reads only the data's actions, so the values stay on the scale of the data's returns (no policy sample
+    and no maximum in the backup, nothing pushed down). Each gradient step, in the reference code's order:
+
+    - the value, by expectile regression on the target critics at the data's actions:
+      ``L_V = E[|expectile - 1(u < 0)| u^2]``, ``u = min_i Q'_i(s, a) - V(s)`` (:func:`expectile_loss`);
+    - the actor, by advantage-weighted regression: ``L_pi = -E[min(exp(temperature * (Q'(s, a) - V(s))),
+      max_weight) * log pi(a | s)]``, ``pi`` the Gaussian of :class:`~sb3_cql.iql.policies.IQLActor`;
+    - the twin critics, by TD to the value of the next state: ``L_Q = sum_i E[(Q_i(s, a) - r - (1 - d) * discount *
+      V(s'))^2]`` (each critic's full mean squared error, as the references), with SB3's n-step ``discounts``
+      (``n_steps``, ``action_chunk``) and the critics' rewards ``reward_scale * r + reward_bias``;
+    - the target critics, by Polyak averaging with ``tau``.
+
+    Everything else is :class:`~sb3_cql.common.OfflineSAC`'s: datasets (Minari ids, objects, SB3 buffers),
+    ``n_steps``, ``action_chunk``, the observation normaliser, ``save``/``load``, callbacks and online fine-tuning
+    (``online_fraction``: the same losses on mixed batches, acting with samples of the actor). With ``best_of_n``
+    the model acts by ranking ``best_of_n`` samples of its actor by its critics (SHARSA's best-of-N), which uses the
+    critics where the actor's regression only weights the data.
+
+    Defaults are the reference implementations' for a generic task (ikostrikov/implicit_q_learning's MuJoCo settings
+    and d3rlpy's ``IQLConfig``: learning rates 3e-4, batch 256, ``expectile`` 0.7, ``temperature`` 3, weights
+    clipped at 100, ``tau`` 5e-3, gamma 0.99, 2 x 256 networks); its AntMaze settings, for sparse long-horizon goals,
+    are ``expectile`` 0.9, ``temperature`` 10, rewards ``r - 1``.
+
+    :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with IQL's
+        actor and value network, :mod:`sb3_cql.iql.policies`).
+    :param env: the environment (for its spaces, and the default evaluation env).
+    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
+        ``buffer_size``. A missing standard id is collected first (:func:`sb3_cql.data.ensure_dataset`).
+    :param learning_rate: learning rate of the critics and the value network.
+    :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
+    :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
+    :param batch_size: minibatch size of each gradient step.
+    :param tau: Polyak coefficient of the target critics.
+    :param gamma: discount factor (up to 1; 0.999 for goals hundreds of steps after the choice that decides them).
+    :param expectile: the value's expectile of Q over the data's actions, in [0.5, 1): 0.5 is SARSA's mean, higher is
+        closer to the best action the data show.
+    :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning).
+    :param max_weight: the largest advantage weight.
+    :param target_update_interval: gradient steps between target updates.
+    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
+        rewards); a sparse 0/1 reward that ends the episode needs neither: the values are then the discounted
+        probability of success, in [0, 1].
+    :param reward_bias: see ``reward_scale``.
+    :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
+        (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
+    :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
+        ``None`` (the default) does for an ``MlpPolicy`` on Box observations.
+    :param online_fraction: ``None`` (the default) trains offline; a fraction fine-tunes online with the offline data
+        kept (:class:`~sb3_cql.common.OfflineSAC`).
+    :param online_buffer_size: capacity of the online transitions when fine-tuning.
+    :param learning_starts: env steps of uniform random actions before training starts, when fine-tuning (SAC's).
+    :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
+    :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's).
+    :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``).
+    :param deterministic_rollouts: when fine-tuning, act with the deterministic action plus ``action_noise``.
+    :param action_chunk: actions per decision (Q-chunking): the actor and the critics work on chunks, the TD target
+        spans the chunk; each chunk runs open loop when the model acts. ``1``: one action a state.
+    :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
+    :param replay_buffer_kwargs: keywords of that class (SAC's).
+    :param optimize_memory_usage: SAC's; only ``False``.
+    :param n_steps: SB3's n-step returns: the TD target sums up to ``n_steps`` rewards within an episode and
+        bootstraps on ``V`` with ``gamma`` to the power of the steps summed.
+    :param stats_window_size: episodes averaged in the rollout logs when fine-tuning (SAC's).
+    :param tensorboard_log: TensorBoard log folder.
+    :param policy_kwargs: keywords of the policy (``net_arch``, ``critic_layer_norm``, ...).
+    :param verbose: 0 silent, 1 training logs, 2 debug.
+    :param seed: seed of the random generators.
+    :param device: torch device.
+    :param _init_setup_model: build the networks now.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "CnnPolicy": CnnPolicy,
+        "MultiInputPolicy": MultiInputPolicy,
+    }
+    policy: IQLPolicy
+    value_net: ValueNetwork
+
+    def __init__(
+        self,
+        policy: str | type[BasePolicy],
+        env: GymEnv | str,
+        dataset: MinariDataset | str | ReplayBuffer | None = None,
+        learning_rate: float | Schedule = 3e-4,
+        actor_learning_rate: float | Schedule | None = None,
+        buffer_size: int = 2_000_000,
+        batch_size: int = 256,
+        tau: float = 0.005,
+        gamma: float = 0.99,
+        expectile: float = 0.7,
+        temperature: float = 3.0,
+        max_weight: float = 100.0,
+        target_update_interval: int = 1,
+        reward_scale: float = 1.0,
+        reward_bias: float = 0.0,
+        best_of_n: int = 1,
+        normalize_observations: bool | None = None,
+        online_fraction: float | None = None,
+        online_buffer_size: int = 1_000_000,
+        learning_starts: int = 0,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        deterministic_rollouts: bool = False,
+        action_chunk: int = 1,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        n_steps: int = 1,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        self.expectile = expectile
+        self.temperature = temperature
+        self.max_weight = max_weight
+        self.reward_scale = reward_scale
+        self.reward_bias = reward_bias
+        super().__init__(
+            policy,
+            env,
+            dataset=dataset,
+            learning_rate=learning_rate,
+            actor_learning_rate=actor_learning_rate,
+            buffer_size=buffer_size,
+            normalize_observations=normalize_observations,
+            online_fraction=online_fraction,
+            online_buffer_size=online_buffer_size,
+            learning_starts=learning_starts,
+            action_noise=action_noise,
+            deterministic_rollouts=deterministic_rollouts,
+            action_chunk=action_chunk,
+            best_of_n=best_of_n,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            n_steps=n_steps,
+            stats_window_size=stats_window_size,
+            policy_kwargs=policy_kwargs,
+            batch_size=batch_size,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            tau=tau,
+            gamma=gamma,
+            ent_coef=0.0,  # no entropy term: SAC's coefficient stays a constant, never learned
+            target_update_interval=target_update_interval,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
+
+    def _check_settings(self) -> None:
+        """OfflineSAC's checks, and those of IQL's own settings."""
+        super()._check_settings()
+        expectile = self.expectile
+        if not (isinstance(expectile, (int, float)) and not isinstance(expectile, bool) and 0.5 <= expectile < 1):
+            raise SettingError(f"expectile must be in [0.5, 1), got {expectile!r}")
+        check_non_negative([("temperature", self.temperature)])
+        check_non_negative([("max_weight", self.max_weight)], strictly=True)
+        for name in ("reward_scale", "reward_bias"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)):
+                raise SettingError(f"{name} must be a finite number, got {value!r}")
+        if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
+            raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
+        if not issubclass(self.policy_class, IQLPolicy):
+            name = getattr(self.policy_class, "__name__", self.policy_class)
+            raise SettingError(f"IQL needs a policy with a value network (sb3_cql.iql.policies), got {name}")
+
+    def _create_aliases(self) -> None:
+        super()._create_aliases()
+        self.value_net = self.policy.value_net
+
+    def train(self, gradient_steps: int, batch_size: int = 256) -> None:
+        """IQL's update (the class docstring), ``gradient_steps`` times: the value, the actor, the critics, the
+        targets. Logs SB3's ``train/actor_loss`` and ``train/critic_loss``, and ``train/value_loss``,
+        ``train/iql_q_data``, ``train/iql_value``, ``train/iql_advantage`` and ``train/iql_weight`` (the mean
+        advantage weight)."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.critic.optimizer, self.value_net.optimizer])
+        update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
+        logs: dict[str, list[float]] = {}
+
+        for _ in range(gradient_steps):
+            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+
+            with th.no_grad():
+                q_data = th.cat(self.critic_target(replay_data.observations, replay_data.actions), dim=1)
+                q_data = q_data.min(dim=1, keepdim=True).values
+            value_loss = expectile_loss(q_data - self.value_net(replay_data.observations), self.expectile)
+            self._step(self.value_net.optimizer, value_loss, "IQL's value loss")
+
+            with th.no_grad():
+                value = self.value_net(replay_data.observations)
+                advantage = q_data - value
+                weights = th.exp(self.temperature * advantage).clamp(max=self.max_weight)
+            log_prob = self.actor.log_prob_of(replay_data.observations, replay_data.actions)
+            actor_loss = -(weights.squeeze(1) * log_prob).mean()
+            self._step(self.actor.optimizer, actor_loss, "IQL's actor loss")
+
+            with th.no_grad():
+                target_q_values = self.compute_target(replay_data, discounts)
+            current_q_values = self.critic(replay_data.observations, replay_data.actions)
+            critic_loss = sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+            critic_loss_value = self._step(self.critic.optimizer, critic_loss, "IQL's critic loss")
+
+            self._n_updates += 1
+            if self._n_updates % self.target_update_interval == 0:
+                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+
+            for key, number in (
+                ("train/critic_loss", critic_loss_value),
+                ("train/value_loss", value_loss.item()),
+                ("train/actor_loss", actor_loss.item()),
+                ("train/iql_q_data", q_data.mean().item()),
+                ("train/iql_value", value.mean().item()),
+                ("train/iql_advantage", advantage.mean().item()),
+                ("train/iql_weight", weights.mean().item()),
+            ):
+                logs.setdefault(key, []).append(number)
+
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, values in logs.items():
+            self.logger.record(key, float(np.mean(values)))
+
+    def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
+        """The rewards the critics learn from: ``reward_scale * reward + reward_bias`` a step, summed over an n-step
+        sample's steps with their discounts (:func:`~sb3_cql.common.offline.shaped_rewards`)."""
+        return shaped_rewards(replay_data, self.reward_scale, self.reward_bias, self.gamma)
+
+    def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
+        """The critics' TD target, ``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`; the
+        samples' ``discounts`` for n-step returns, else ``gamma``)."""
+        next_values = self.value_net(replay_data.next_observations)
+        return self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
+
+    def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, description: str) -> float:
+        """One optimizer step on ``loss``, refused (:class:`~sb3_cql.common.TrainingDivergedError`) before it is taken
+        if the loss is NaN or infinite; the loss as a number."""
+        hint = "try a lower learning_rate, a lower temperature, or rewards on a smaller scale"
+        value = finite_loss_value(loss, description, self.num_timesteps + 1, hint)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        return value
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        return [*state_dicts, "value_net.optimizer"], variables
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "value_net"]

@@ -1,0 +1,144 @@
+"""IQL's policies: SAC's actor and twin critics (:class:`~sb3_cql.common.policies.OfflinePolicy`) with a state-value
+network beside them, and the actor's distribution as the references fit it.
+
+- :class:`ValueNetwork`: ``V(s)``, an MLP of the critics' architecture on its own features extractor.
+- :class:`IQLActor`: SAC's ``Actor`` whose distribution is the references' for advantage-weighted regression
+  (ikostrikov/implicit_q_learning, d3rlpy): a Gaussian with mean ``tanh(mu)`` and the log-std head's spread, its
+  samples clipped to [-1, 1]. Its deterministic action is SAC's, ``tanh(mu)``.
+"""
+
+from __future__ import annotations
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BaseModel
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from stable_baselines3.sac import policies as sac_policies
+from stable_baselines3.sac.policies import Actor
+from torch import nn
+
+from sb3_cql.common.policies import NormalizedFlatten, OfflinePolicy
+
+__all__ = ["CnnPolicy", "IQLActor", "IQLPolicy", "MlpPolicy", "MultiInputPolicy", "NormalizedFlatten", "ValueNetwork"]
+
+
+class ValueNetwork(BaseModel):
+    """The state value ``V(s)``: ``net_arch`` hidden layers on the features of ``features_extractor``, one output.
+
+    :param observation_space: the observation space.
+    :param action_space: the action space (SB3's ``BaseModel`` keeps it; V does not read actions).
+    :param net_arch: the hidden layers' sizes.
+    :param features_extractor: this network's own features extractor.
+    :param features_dim: its output size.
+    :param activation_fn: the hidden layers' activation.
+    :param layer_norm: a LayerNorm after each hidden layer, before its activation (as the critics' with
+        ``critic_layer_norm``).
+    :param normalize_images: SB3's scaling of image observations.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Box,
+        net_arch: list[int],
+        features_extractor: BaseFeaturesExtractor,
+        features_dim: int,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        layer_norm: bool = False,
+        normalize_images: bool = True,
+    ) -> None:
+        super().__init__(observation_space, action_space, features_extractor=features_extractor,
+                         normalize_images=normalize_images)  # fmt: skip
+        layers = create_mlp(features_dim, 1, net_arch, activation_fn)
+        if layer_norm:
+            normed: list[nn.Module] = []
+            for layer in layers:
+                normed.append(layer)
+                if isinstance(layer, nn.Linear) and layer is not layers[-1]:
+                    normed.append(nn.LayerNorm(layer.out_features))
+            layers = normed
+        self.v_net = nn.Sequential(*layers)
+
+    def forward(self, obs: PyTorchObs) -> th.Tensor:
+        """``V(obs)``, ``(batch, 1)``."""
+        return self.v_net(self.extract_features(obs, self.features_extractor))
+
+
+class IQLActor(Actor):
+    """SAC's ``Actor`` with the references' distribution for advantage-weighted regression: ``N(tanh(mu), std)``,
+    ``std`` from SAC's log-std head (clamped as SAC's), samples clipped to [-1, 1] (:meth:`log_prob_of`,
+    :meth:`forward`). The data's actions at the bounds of [-1, 1] (a gripper's) keep a finite likelihood, where a
+    squashed Gaussian's would need an infinite mean."""
+
+    def log_prob_of(self, obs: PyTorchObs, actions: th.Tensor) -> th.Tensor:
+        """The log-density of ``actions`` (``(batch, action_dim)``, in [-1, 1]) at ``obs``, ``(batch,)``."""
+        mean_actions, log_std, _ = self.get_action_dist_params(obs)
+        distribution = th.distributions.Normal(th.tanh(mean_actions), log_std.exp())
+        return distribution.log_prob(actions).sum(dim=-1)
+
+    def forward(self, obs: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        mean_actions, log_std, _ = self.get_action_dist_params(obs)
+        if deterministic:
+            return th.tanh(mean_actions)
+        return gaussian_actions(mean_actions, log_std, th.randn_like(mean_actions))
+
+
+def gaussian_actions(mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tensor) -> th.Tensor:
+    """Actions of ``N(tanh(mean_actions), exp(log_std))`` for standard normal ``noise``, clipped to [-1, 1]."""
+    return (th.tanh(mean_actions) + log_std.exp() * noise).clamp(-1.0, 1.0)
+
+
+class IQLPolicy(OfflinePolicy):
+    """SAC's policy (``MlpPolicy``, optionally on action chunks and acting by best-of-N:
+    :class:`~sb3_cql.common.policies.OfflinePolicy`) with :class:`IQLActor` and a :class:`ValueNetwork`
+    (``value_net``, its own Adam optimizer at the critics' learning rate) of the critics' architecture."""
+
+    value_net: ValueNetwork
+
+    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> IQLActor:
+        actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
+        return IQLActor(**actor_kwargs).to(self.device)
+
+    def make_value_net(self) -> ValueNetwork:
+        """A new :class:`ValueNetwork` on a features extractor of its own."""
+        features_extractor = self.make_features_extractor()
+        return ValueNetwork(
+            self.observation_space,
+            self.action_space,  # type: ignore[arg-type]
+            net_arch=self.critic_kwargs["net_arch"],
+            features_extractor=features_extractor,
+            features_dim=features_extractor.features_dim,
+            activation_fn=self.critic_kwargs["activation_fn"],
+            layer_norm=self.critic_layer_norm,
+            normalize_images=self.normalize_images,
+        ).to(self.device)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        self.value_net = self.make_value_net()
+        self.value_net.optimizer = self.optimizer_class(
+            self.value_net.parameters(),
+            lr=lr_schedule(1),  # type: ignore[call-arg]
+            **self.optimizer_kwargs,
+        )
+
+    def candidate_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tensor) -> th.Tensor:
+        """Best-of-N's candidates from the distribution the actor fits (:class:`IQLActor`)."""
+        return gaussian_actions(mean_actions, log_std, noise)
+
+    def set_training_mode(self, mode: bool) -> None:
+        super().set_training_mode(mode)
+        self.value_net.set_training_mode(mode)
+
+
+MlpPolicy = IQLPolicy
+
+
+class CnnPolicy(IQLPolicy, sac_policies.CnnPolicy):
+    """SAC's ``CnnPolicy`` (``NatureCNN`` features) with IQL's actor and value network."""
+
+
+class MultiInputPolicy(IQLPolicy, sac_policies.MultiInputPolicy):
+    """SAC's ``MultiInputPolicy`` (``CombinedExtractor`` features, Dict observations) with IQL's actor and value
+    network."""
