@@ -3,16 +3,68 @@
 :class:`GraspConfig` is the single home of the simulation constants (Table A.2 of the thesis for
 gravity, mass and friction). Every field is also a keyword of the environments, so
 ``gymnasium.make("Panda-v0", object_mass=0.5)`` changes the object's mass and an unknown keyword
-raises ``TypeError``. Units: metres, kilograms, seconds, newtons, radians.
+raises ``TypeError``; a value that is not a finite number, or is out of its field's range, raises
+:class:`ConfigError` (a ``ValueError``) naming it, before anything is simulated. Units: metres, kilograms,
+seconds, newtons, radians.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+import numbers
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+import numpy as np
+
 Range = tuple[float, float]
+
+
+class ConfigError(ValueError):
+    """A physical parameter or threshold outside what the simulation can use (not a finite number, or out of its
+    range): the message names the keyword, the value and what it must be."""
+
+
+#: The bounds of the fields that have one: ``(lowest, whether the lowest itself is allowed)``; every number of every
+#: field must be finite.
+FIELD_BOUNDS = {
+    "sim_timestep": (0.0, False), "substeps": (1, True), "arm_motor_force": (0.0, True),
+    "finger_motor_force": (0.0, True), "finger_contact_stiffness": (0.0, False), "finger_contact_damping": (0.0, True),
+    "arm_max_delta": (0.0, False), "finger_max_delta": (0.0, False), "object_radius": (0.0, False),
+    "object_height": (0.0, False), "object_mass": (0.0, False), "object_lateral_friction": (0.0, True),
+    "object_drop_height": (0.0, True), "force_magnitude": (0.0, True),
+}  # fmt: skip
+#: The fields that are pairs ``(low, high)`` or vectors, with their length.
+FIELD_LENGTHS = {"object_x_range": 2, "object_y_range": 2, "object_yaw_range": 2, "gravity_range": 2,
+                 "object_mass_range": 2, "object_friction_range": 2, "force_direction": 3}  # fmt: skip
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _check_field(name: str, value: Any) -> None:
+    """:class:`ConfigError` unless the field ``name`` has a value the simulation can use (:data:`FIELD_BOUNDS`,
+    :data:`FIELD_LENGTHS`, finite numbers): the one place the keywords of the tasks are checked."""
+    if name == "randomize_physics":
+        if not isinstance(value, (bool, np.bool_)):
+            raise ConfigError(f"randomize_physics must be True or False, got {value!r}")
+        return
+    if name in FIELD_LENGTHS:
+        length = FIELD_LENGTHS[name]
+        if not isinstance(value, (tuple, list)) or len(value) != length or not all(map(_is_number, value)):
+            raise ConfigError(f"{name} must be {length} numbers, got {value!r}")
+        if not all(math.isfinite(v) for v in value):
+            raise ConfigError(f"{name} must be finite numbers, got {value!r}")
+        return
+    if name == "substeps" and not (isinstance(value, numbers.Integral) and not isinstance(value, bool)):
+        raise ConfigError(f"substeps must be an integer >= 1, got {value!r}")
+    if not _is_number(value) or not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    if name in FIELD_BOUNDS:
+        lowest, allowed = FIELD_BOUNDS[name]
+        if value < lowest or (value == lowest and not allowed):
+            raise ConfigError(f"{name} must be {'>=' if allowed else '>'} {lowest}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -84,23 +136,29 @@ class GraspConfig:
     control_timestep: float = field(init=False)
 
     def __post_init__(self) -> None:
-        if self.sim_timestep <= 0 or self.substeps < 1:
-            raise ValueError(f"sim_timestep must be > 0 and substeps >= 1, got {self.sim_timestep}, {self.substeps}")
+        for item in fields(self):
+            if item.init:
+                _check_field(item.name, getattr(self, item.name))
         for name in ("object_x_range", "object_y_range", "object_yaw_range", "gravity_range", "object_mass_range",
                      "object_friction_range"):  # fmt: skip
             low, high = getattr(self, name)
             if not low <= high:
-                raise ValueError(f"{name} must be (low, high) with low <= high, got {(low, high)}")
+                raise ConfigError(f"{name} must be (low, high) with low <= high, got {(low, high)}")
             object.__setattr__(self, name, (float(low), float(high)))
-        if self.object_mass <= 0 or self.object_mass_range[0] <= 0:
-            raise ValueError("object masses must be positive")
-        if self.force_magnitude < 0:
-            raise ValueError(f"force_magnitude must be >= 0, got {self.force_magnitude}")
+        if self.object_mass_range[0] <= 0:
+            raise ConfigError(f"object_mass_range must hold positive masses, got {self.object_mass_range}")
+        if self.object_friction_range[0] < 0:
+            raise ConfigError(f"object_friction_range must hold frictions >= 0, got {self.object_friction_range}")
         norm = math.sqrt(sum(c * c for c in self.force_direction))
-        if len(self.force_direction) != 3 or norm == 0:
-            raise ValueError(f"force_direction must be a non-zero 3-vector, got {self.force_direction}")
+        if norm == 0:
+            raise ConfigError(f"force_direction must be a non-zero 3-vector, got {self.force_direction}")
         object.__setattr__(self, "force_direction", tuple(float(c) / norm for c in self.force_direction))
         object.__setattr__(self, "control_timestep", self.sim_timestep * self.substeps)
+
+    @classmethod
+    def keywords(cls) -> tuple[str, ...]:
+        """The fields that are keywords of the environments (all but the derived ones)."""
+        return tuple(item.name for item in fields(cls) if item.init)
 
     def to_kwargs(self) -> dict[str, Any]:
         """The keywords that rebuild this configuration (``GraspConfig(**config.to_kwargs())``)."""

@@ -23,6 +23,16 @@ OBSERVATION_SLICES = {
     "finger_offsets": slice(23, 29),
 }
 OBSERVATION_SIZE = 29
+#: The keywords of the tasks besides the physics of :class:`~envs.config.GraspConfig`.
+ENV_KEYWORDS = ("render_mode", "action_mode", "render_width", "render_height")
+
+
+def check_keywords(kwargs: dict[str, Any]) -> None:
+    """``TypeError`` naming the keywords of ``kwargs`` that the tasks do not take, and those they take."""
+    unknown = sorted(set(kwargs) - {*ENV_KEYWORDS, *GraspConfig.keywords()})
+    if unknown:
+        raise TypeError(f"unknown keyword(s) {', '.join(unknown)}: the tasks take {', '.join(ENV_KEYWORDS)} and the "
+                        f"physics of GraspConfig: {', '.join(GraspConfig.keywords())}")  # fmt: skip
 
 
 class PandaGraspEnv(gym.Env):
@@ -56,6 +66,7 @@ class PandaGraspEnv(gym.Env):
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        check_keywords(physics)
         self.config = GraspConfig(**physics)
         self.render_mode = render_mode
         self.action_mode = action_mode

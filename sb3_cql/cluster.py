@@ -17,6 +17,8 @@ from typing import Any
 INSTALL = 'pip install -e ".[ray]" (or pip install "ray>=2.60")'
 #: Tasks in flight per CPU of the cluster: enough for every CPU to find its next task while results come back.
 TASKS_PER_CPU = 2
+#: Seconds a connection to a cluster's address may take before it counts as out of reach.
+PROBE_TIMEOUT_S = 5.0
 
 
 class ClusterError(RuntimeError):
@@ -31,11 +33,31 @@ def connect(address: str) -> Any:
     except ImportError:
         raise ClusterError(f"--ray needs Ray, which is not installed: {INSTALL}") from None
     if not ray.is_initialized():
+        unreachable = _unreachable(address)
+        if unreachable is not None:  # Ray would wait for minutes
+            raise ClusterError(f"cannot connect to the Ray cluster at {address}: {unreachable}; start it (ray start "
+                               "--head) or give the address that ray status prints")  # fmt: skip
         try:
             ray.init(address=address, logging_level="ERROR", log_to_driver=False, configure_logging=True)
         except Exception as error:  # Ray raises ConnectionError, ValueError or its own errors
             raise ClusterError(f"cannot connect to the Ray cluster at {address}: {' '.join(str(error).split())}") from None
     return ray
+
+
+def _unreachable(address: str) -> str | None:
+    """Why nothing can be connected to at a ``host:port`` or ``ray://host:port`` address, found within
+    :data:`PROBE_TIMEOUT_S` seconds; ``None`` where something answers, or for an address Ray resolves itself
+    (``auto``)."""
+    import socket
+
+    host, separator, port = address.removeprefix("ray://").rpartition(":")
+    if not separator or not port.isdigit() or not host:
+        return None
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_TIMEOUT_S).close()
+    except OSError as error:
+        return f"nothing answers at {host}:{port} ({error.strerror or error})"
+    return None
 
 
 def cluster_cpus(ray: Any) -> int:

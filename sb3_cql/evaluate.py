@@ -34,6 +34,7 @@ import argparse
 import dataclasses
 import inspect
 import itertools
+import os
 import re
 import sys
 from collections.abc import Sequence
@@ -49,6 +50,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
+from envs.panda_env import check_keywords
 from envs.pd_controller import closing_angles
 from envs.robot import ACTION_MODES
 from sb3_cql.interrupts import exit_status, run_command
@@ -328,15 +330,45 @@ def fail(parser: argparse.ArgumentParser, message: str) -> NoReturn:
     raise SystemExit(2)
 
 
+def model_file(path: str) -> Path | None:
+    """The file SB3 reads the model saved at ``path`` from (``path``, or ``path`` + ``.zip``), if there is one."""
+    return next((candidate for candidate in (Path(path), Path(f"{path}.zip")) if candidate.is_file()), None)
+
+
+def check_output(parser: argparse.ArgumentParser, output: Path, model: str) -> None:
+    """A one-line error, before any episode, for an ``--output`` that could not be written or would replace an
+    input: a folder, the model's own file (the same file by ``os.path.samefile``, whatever the path), or a place
+    without write permission."""
+    try:
+        is_dir, exists = output.is_dir(), output.exists()
+    except OSError as error:  # a name too long, ...
+        fail(parser, f"--output {output} cannot be written: {error.strerror or error}")
+    if is_dir:
+        fail(parser, f"--output {output} is a folder: give the path of a JSON file, e.g. {output / 'evaluation.json'}")
+    found = model_file(model)
+    if found is not None and exists and os.path.samefile(output, found):
+        fail(parser, f"--output {output} is the model {model} itself: give another file, e.g. {found.with_suffix('.json')}")
+    folder = output.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        fail(parser, f"--output {output} cannot be written: {folder} is not a folder this user may write in")
+
+
 def load_model(parser: argparse.ArgumentParser, path: str, algo: str, env_id: str) -> Any:
     """The SB3 model saved at ``path`` (or ``path`` + ``.zip``, as SB3 reads it), or a one-line error."""
     from rl_zoo3.utils import ALGOS  # our plugin adds cql
 
     if algo not in ALGOS:
         fail(parser, f"unknown --algo {algo!r}: one of {', '.join(sorted(ALGOS))}")
-    found = next((candidate for candidate in (Path(path), Path(f"{path}.zip")) if candidate.is_file()), None)
+    found = model_file(path)
     if found is None:
         fail(parser, f"no saved model at {path}" + (" (a folder)" if Path(path).is_dir() else ""))
+    from sb3_cql.common.atomic import saved_model_problem
+
+    problem = saved_model_problem(found)
+    if problem is not None:
+        fail(parser, f"cannot load {found} as a {algo} model: {problem}")
     try:
         return load_policy(str(found), algo, env_id)
     except Exception as error:  # an unreadable file: not a zip, truncated, another algorithm's model, ...
@@ -375,6 +407,14 @@ def main(argv: list[str] | None = None) -> None:
     n_episodes = len(seeds) if seeds is not None else 100 if args.n_episodes is None else args.n_episodes
     if n_episodes < 1:
         parser.error(f"-n needs at least 1 episode, got {n_episodes}")
+    if args.seed < 0:
+        fail(parser, f"--seed must be >= 0 (numpy seeds), got {args.seed}")
+    try:
+        check_keywords(args.env_kwargs)
+    except TypeError as error:
+        fail(parser, f"--env-kwargs: {error}")
+    if args.output is not None:
+        check_output(parser, args.output, args.model)
     written: list[str] = []  # the tasks --output holds
     try:
         _evaluate(parser, args, seeds, n_episodes, written)
@@ -402,6 +442,7 @@ def _evaluate(
             except (ValueError, TypeError) as error:  # TypeError: a keyword the env does not take
                 fail(parser, f"{args.model}: {error}")
     tasks: dict[str, Any] = {}
+    unwritable: list[str] = []
     for env_id in args.env:
         # PD: one per task, for its action mode and physics
         try:
@@ -419,16 +460,22 @@ def _evaluate(
                 "action_mode": action_mode,
                 "episodes": [dataclasses.asdict(outcome) for outcome in outcomes],
             }
-        if args.output is not None:
+        if args.output is not None and not unwritable:
             from sb3_cql.benchmark.records import write_json
 
             record = {"model": args.model, "algo": args.algo, "deterministic": not args.stochastic, "tasks": tasks}
-            write_json(args.output, record)  # after each task: a killed evaluation keeps the tasks it finished
-            written.append(env_id)
+            try:
+                write_json(args.output, record)  # after each task: a killed evaluation keeps the tasks it finished
+                written.append(env_id)
+            except OSError as error:  # the results are still printed, and the command ends on one line at the end
+                unwritable.append(f"cannot write --output {args.output} ({error.strerror or error}): the results are "
+                                  "the lines printed")  # fmt: skip
         # Printed once recorded: a task whose line is out is in --output.
         print(f"{env_id}: success rate {rate:.3f} over {n_episodes} episodes ({episodes}, {action_mode} actions)", flush=True)
         if args.alignment:
             print(f"{env_id}: {alignment_summary(outcomes)}", flush=True)
+    if unwritable:
+        fail(parser, unwritable[0])
 
 
 if __name__ == "__main__":

@@ -9,9 +9,12 @@ command to end on its own line.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
+import threading
+from collections.abc import Iterator
 from typing import Any
 
 #: The shell's exit status of a program ended by Ctrl-C (128 + SIGINT) and by SIGTERM (128 + SIGTERM).
@@ -99,3 +102,27 @@ def run_command(main: Any) -> None:
         main()
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold Ctrl-C (and a SIGTERM that has a handler) back while the block runs, so that what it does is done whole
+    (a gradient step: every optimiser of the model steps, or none), then act as the first one would have: its handler
+    (Python's raises ``KeyboardInterrupt``) runs once the block is done. A signal ignored, or left to its default
+    action, is not held; only the main thread receives signals: in another one, the block just runs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    held = {signum: handler for signum, handler in previous.items() if callable(handler)}
+    received: list[tuple[int, Any]] = []
+    for signum in held:
+        signal.signal(signum, lambda signum, frame: received.append((signum, frame)))
+    try:
+        yield
+    finally:
+        for signum, handler in held.items():
+            signal.signal(signum, handler)
+    if received:
+        signum, frame = received[0]
+        held[signum](signum, frame)

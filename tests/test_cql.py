@@ -415,7 +415,7 @@ def test_invalid_cql_settings_are_rejected(options):
         ({"gamma": 1.5}, "gamma must be in (0, 1], got 1.5"),
         ({"gamma": -1}, "gamma must be in (0, 1], got -1"),
         ({"gamma": 0.0}, "gamma must be in (0, 1], got 0.0"),
-        ({"tau": 2}, "tau must be in (0, 1], got 2"),
+        ({"tau": 2}, "tau must be in [0, 1], got 2"),
         ({"bc_steps": -3}, "bc_steps must be an integer >= 0, got -3"),
         ({"batch_size": 0}, "batch_size must be an integer >= 1, got 0"),
         ({"batch_size": -5}, "batch_size must be an integer >= 1, got -5"),

@@ -213,18 +213,18 @@ def test_ctrl_c_that_python_drops_in_a_destructor_still_stops_the_collection(mon
 def test_a_partial_collection_of_another_spec_is_kept_and_the_new_one_refused_until_overwrite(monkeypatch):
     run_episode = interrupt_collection_at(monkeypatch, 1, [])
     with pytest.raises(KeyboardInterrupt):
-        collect_dataset(CollectionSpec(policy="random", n_episodes=2, seed=1), progress_bar=False)
+        collect_dataset(CollectionSpec(policy="random", n_episodes=2), progress_bar=False)
     monkeypatch.setattr(collection_module, "_run_episode", run_episode)
     partial = DatasetFiles("sb3cql/Panda-v0/random-v0")
-    command = "python -m sb3_cql.data collect --env Panda-v0 --policy random --episodes 2 --seed 1"
+    command = "python -m sb3_cql.data collect --env Panda-v0 --policy random --episodes 2 --seed 0"
     with pytest.raises(DatasetError, match=rf"is in {re.escape(str(partial.partial))}: 1 of 2 episodes of another "
                                            rf"collection .*resume it with: {command} .*, or pass --overwrite"):  # fmt: skip
-        collect_dataset(CollectionSpec(policy="random", n_episodes=1, seed=2), progress_bar=False)
+        collect_dataset(CollectionSpec(policy="random", n_episodes=1), progress_bar=False)
     assert partial.episodes_held() == 1  # kept
-    dataset = collect_dataset(CollectionSpec(policy="random", n_episodes=1, seed=2), overwrite=True, progress_bar=False)
+    dataset = collect_dataset(CollectionSpec(policy="random", n_episodes=1), overwrite=True, progress_bar=False)
     assert dataset.total_episodes == 1
-    assert dataset.storage.metadata["collection"] == CollectionSpec(policy="random", n_episodes=1, seed=2).to_json()
-    np.testing.assert_array_equal(dataset[0].observations[0], gym.make("Panda-v0").reset(seed=2)[0])
+    assert dataset.storage.metadata["collection"] == CollectionSpec(policy="random", n_episodes=1).to_json()
+    np.testing.assert_array_equal(dataset[0].observations[0], gym.make("Panda-v0").reset(seed=0)[0])
     assert not partial.partial.exists()
 
 

@@ -103,7 +103,7 @@ def group_gone(pgid: int, timeout: float = 15) -> bool:
 def test_a_kill_at_any_point_of_a_collection_resumes_to_the_dataset_an_uninterrupted_one_gives(minari_root, point):
     """A collection replacing an older dataset (``--overwrite``) is killed with SIGKILL at ``point``; meanwhile the id
     reads as one complete dataset, and the same command ends in the dataset of an uninterrupted collection."""
-    old = collect_dataset(CollectionSpec(n_episodes=3, seed=7), progress_bar=False)
+    old = collect_dataset(CollectionSpec(n_episodes=3), progress_bar=False)
     old_observations = old[0].observations.copy()
     killed = run_cli([*COMMAND, "--overwrite"], minari_root, crash_at=point)
     assert killed.returncode == -signal.SIGKILL, killed.stderr

@@ -146,6 +146,13 @@ class BC(OfflineSAC):
                   f"{dataset.spec.dataset_id} (min_return={self.min_return}, top_fraction={self.top_fraction})")  # type: ignore[union-attr]  # fmt: skip
         return super()._fill_from_dataset(selected)
 
+    @classmethod
+    def refuse_unknown_keywords(cls, keywords: Any) -> None:
+        """SAC's keywords for what BC does not train, and unknown ones, as BC's constructor refuses them."""
+        unknown = {keyword: None for keyword in keywords if keyword not in inspect.signature(cls.__init__).parameters}
+        if unknown:
+            _refuse_sac_keywords(unknown)
+
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """``gradient_steps`` Adam steps on the behaviour-cloning loss of the actor."""
         self.policy.set_training_mode(True)

@@ -91,9 +91,9 @@ def main(argv: list[str] | None = None) -> None:
                 eval_freq=args.eval_freq if args.eval_freq is not None else quick.get("eval_freq"),
                 eval_episodes=args.eval_episodes if args.eval_episodes is not None else quick.get("eval_episodes"),
                 episodes=args.episodes if args.episodes is not None else quick.get("episodes", 100),
-                zoo_args=shlex.split(args.zoo_args),
+                zoo_args=_split("--zoo-args", args.zoo_args),
                 dataset=args.dataset,
-                finetune_args=shlex.split(args.finetune_args),
+                finetune_args=_split("--finetune-args", args.finetune_args),
             )
             save_freq = args.save_freq if args.save_freq is not None else quick.get("save_freq", 10_000)
             protocol = Protocol(
@@ -116,6 +116,14 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(exit_status(interrupt)) from None
     if failed is not None:
         sys.exit(f"error: {failed}")
+
+
+def _split(option: str, value: str) -> list[str]:
+    """The words of ``value`` as the shell splits them; a :class:`BenchmarkError` where it cannot (a quote left open)."""
+    try:
+        return shlex.split(value)
+    except ValueError as error:
+        raise BenchmarkError(f"{option} {value!r}: {error} (close each quote)") from None
 
 
 def make_outputs(results: ResultsFolder, tasks: list[str], filmstrips: bool = True) -> None:

@@ -40,6 +40,7 @@ def write_text(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(descriptor, 0o666 & ~_umask())  # mkstemp's 0600: a record is read as any file the user writes
         with os.fdopen(descriptor, "w") as file:
             file.write(text)
             file.flush()
@@ -50,9 +51,17 @@ def write_text(path: Path, text: str) -> None:
         raise
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_json(path: Path, data: Any) -> None:
-    """Write ``data`` as JSON to ``path`` atomically (:func:`write_text`)."""
-    write_text(path, json.dumps(data, indent=2) + "\n")
+    """Write ``data`` as JSON to ``path`` atomically (:func:`write_text`); NaN and infinities are refused
+    (``ValueError``): they are not JSON."""
+    write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def read_json(path: Path) -> Any | None:

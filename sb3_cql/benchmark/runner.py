@@ -140,6 +140,8 @@ class Protocol:
 
         from sb3_cql.zoo.plugin import config_file
 
+        self._check_numbers()
+        self._check_results_folder()
         unknown_tasks = sorted((set(self.tasks) | set(self.finetune)) - set(envs.ENV_IDS))
         if unknown_tasks:
             raise BenchmarkError(f"unknown task(s) {unknown_tasks}: choose among {list(envs.ENV_IDS)}")
@@ -156,6 +158,42 @@ class Protocol:
                 raise BenchmarkError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
             if not own_config:
                 _check_dataset(self._dataset_id(algo, config_file(algo, TRAIN_ENV)))
+
+    def _check_numbers(self) -> None:
+        """Every count the protocol is given is one it can run with (a final evaluation of 0 episodes would record
+        NaN as a result)."""
+        settings = self.settings
+        counts = {"--workers": self.workers, "--episodes": settings.episodes, "--save-freq": self.save_freq,
+                  "--n-timesteps": settings.n_timesteps, "--eval-freq": settings.eval_freq,
+                  "--eval-episodes": settings.eval_episodes}  # fmt: skip
+        for option, value in counts.items():
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+                raise BenchmarkError(f"{option} must be an integer >= 1, got {value!r}")
+        if not self.seeds:
+            raise BenchmarkError("--seeds: give at least one seed")
+        for seed in self.seeds:
+            if not isinstance(seed, int) or seed < 0:
+                raise BenchmarkError(f"--seeds must be integers >= 0, got {seed!r}")
+
+    def _check_results_folder(self) -> None:
+        """The results folder is a folder, or can be made, where this user may write; and a ``--ray`` cluster answers:
+        refused before anything is written."""
+        root = self.results.root
+        if root.exists() and not root.is_dir():
+            raise BenchmarkError(f"--results-dir {root} is a file: give a folder")
+        existing = root
+        while not existing.exists():
+            existing = existing.parent
+        if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+            raise BenchmarkError(f"--results-dir {root} cannot be written: {existing} is not a folder this user may "
+                                 "write in; give another --results-dir")  # fmt: skip
+        if self.ray_address is not None:
+            from sb3_cql.cluster import ClusterError, connect
+
+            try:
+                connect(self.ray_address)
+            except ClusterError as error:
+                raise BenchmarkError(str(error)) from None
 
     def _dataset_id(self, algo: str, config: Path) -> str | None:
         """The dataset ``algo`` trains on: its config's ``dataset`` for :data:`TRAIN_ENV`, or the one ``--dataset`` or a

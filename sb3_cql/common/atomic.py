@@ -84,6 +84,8 @@ def saved_model_problem(path: str | os.PathLike) -> str | None:
                 return f"its member {damaged} is damaged"
             if "data" not in archive.namelist():
                 return "it holds no SB3 model (no data member)"
+            if "policy.pth" not in archive.namelist():
+                return "it holds no policy parameters (no policy.pth member)"
     except zipfile.BadZipFile:
         return "it is empty (0 bytes)" if os.path.getsize(path) == 0 else "it is truncated (not a whole zip archive)"
     except (OSError, EOFError, zlib.error) as error:

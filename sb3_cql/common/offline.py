@@ -88,8 +88,10 @@ def check_non_negative(names_values: Iterable[tuple[str, Any]], strictly: bool =
     """:class:`SettingError` unless each setting is a number >= 0 (> 0 with ``strictly``)."""
     for name, value in names_values:
         number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        if not number or not np.isfinite(value) or not (value > 0 if strictly else value >= 0):
-            raise SettingError(f"{name} must be a finite number {'>' if strictly else '>='} 0, got {value!r}")
+        if not number or not (value > 0 if strictly else value >= 0):
+            raise SettingError(f"{name} must be a number {'>' if strictly else '>='} 0, got {value!r}")
+        if not np.isfinite(value):
+            raise SettingError(f"{name} must be a finite number, got {value!r}")
 
 
 def check_finite(names_values: Iterable[tuple[str, Any]]) -> None:
@@ -321,11 +323,20 @@ class OfflineSAC(SAC):
             **kwargs,
         )
 
+    @classmethod
+    def refuse_unknown_keywords(cls, keywords: Iterable[str]) -> None:
+        """:class:`KeywordError` naming those of ``keywords`` that the class does not take (the closest one with each):
+        for callers that hold keywords before making the model (the zoo's hyperparameters)."""
+        parameters = inspect.signature(cls.__init__).parameters
+        takes_more = any(parameter.kind is inspect.Parameter.VAR_KEYWORD for parameter in parameters.values())
+        sac = inspect.signature(SAC.__init__).parameters if takes_more else {}
+        check_keywords(cls.__name__, keywords, [*parameters, *sac])
+
     def _check_settings(self) -> None:
         """:class:`SettingError` for a setting outside what training can use, where SB3 would train on without a word
         or fail later with another message: run when the model is set up, so that it checks the keywords given to
         ``load`` (a fine-tuning's) too. Subclasses add theirs."""
-        check_fraction("gamma", self.gamma, zero=True)
+        check_fraction("gamma", self.gamma)
         check_fraction("tau", self.tau, zero=True)  # 0: a target network that stays as it was made (SAC's too)
         check_rate("learning_rate", self.learning_rate)
         if self.actor_learning_rate is not None:

@@ -120,12 +120,14 @@ class CollectionSpec:
             raise ValueError(f"policy must be one of {POLICIES} or the path of a saved SB3 model, got {self.policy!r}")
         if self.policy not in POLICIES and self.algo is None:
             raise ValueError(f"a model policy ({self.policy}) needs algo, e.g. algo='sac'")
-        if self.n_episodes < 1:
-            raise ValueError(f"n_episodes must be >= 1, got {self.n_episodes}")
+        for name, lowest in (("n_episodes", 1), ("seed", 0)):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < lowest:
+                raise ValueError(f"{name} must be an integer >= {lowest}, got {value!r}")
         if self.noise is None:
             object.__setattr__(self, "noise", DEFAULT_NOISE if self.policy in NOISY_POLICIES else 0.0)
-        if self.noise < 0:
-            raise ValueError(f"noise must be >= 0, got {self.noise}")
+        if isinstance(self.noise, bool) or not isinstance(self.noise, (int, float)) or not 0 <= self.noise < float("inf"):
+            raise ValueError(f"noise must be a finite number >= 0 (std in rad), got {self.noise!r}")
 
     @property
     def controller(self) -> str | None:
@@ -528,7 +530,7 @@ def _resume(files: DatasetFiles, spec: CollectionSpec, overwrite: bool) -> tuple
     files.check_writable()
     held_spec = files.spec()
     if files.holds_anything() and held_spec != spec.to_json():
-        if not overwrite:
+        if not overwrite and not files.holds_no_episodes():  # one that kept none is replaced: nothing is lost
             raise DatasetError(_other_collection(files, held_spec))
         shutil.rmtree(files.partial)
     if held_spec != spec.to_json():
@@ -663,6 +665,7 @@ def collect_dataset(
     in_thousands = spec.n_episodes >= 1000 and spec.n_episodes % 1000 == 0
     dataset_id = dataset_id or ids.dataset_id(spec.env_id, policy_name, spec.action_mode,
                                               episodes=spec.n_episodes if in_thousands else None)  # fmt: skip
+    _check_standard(spec, dataset_id)
     write_every = WRITE_EVERY if write_every is None else write_every
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -691,20 +694,22 @@ def _collect(
         env = gym.make(spec.env_id, **spec.env_kwargs)
         if spec.controller is None and spec.policy != "random":
             make_policy(spec, env)  # a model that cannot be loaded, or acts in another action mode, fails here
+        # Before anything is written: a disk without room, or a cluster out of reach, is one line that leaves nothing.
+        left = spec.n_episodes - (files.episodes_held() if files.spec() == spec.to_json() else 0)
+        where = None
+        if left > 0:
+            _, _, size = estimate(spec, left, workers)
+            _, _, total = estimate(spec, spec.n_episodes, workers)
+            _check_space(files, size + total, f"{left} episodes and the dataset's assembly")
+            if ray_address is not None:
+                from sb3_cql.cluster import cluster_cpus, connect
+
+                workers = cluster_cpus(connect(ray_address))
+                where = f"as Ray tasks on the {workers} CPUs of the cluster at {ray_address}"
         done, successes = _resume(files, spec, overwrite)
         held = len(done)
         missing = [index for index in range(spec.n_episodes) if index not in done]
-        where = None
-        if ray_address is not None and missing:  # connected before anything runs: a cluster out of reach is one line
-            from sb3_cql.cluster import cluster_cpus, connect
-
-            workers = cluster_cpus(connect(ray_address))
-            where = f"as Ray tasks on the {workers} CPUs of the cluster at {ray_address}"
         print(_plan(spec, dataset_id, workers, held, where), file=sys.stderr, flush=True)
-        if missing:
-            _, _, size = estimate(spec, len(missing), workers)
-            _, _, total = estimate(spec, spec.n_episodes, workers)
-            _check_space(files, size + total, f"{len(missing)} episodes and the dataset's assembly")
         steps, begin = 0, time.perf_counter()
         with (
             _interrupts_noted() as interrupted,
@@ -813,6 +818,36 @@ def standard_collection(dataset_id: str) -> CollectionSpec | None:
     return CollectionSpec(env_id, policy, n_episodes=episodes, env_kwargs=env_kwargs)
 
 
+def _check_standard(spec: CollectionSpec, dataset_id: str) -> None:
+    """A :class:`DatasetError` if ``dataset_id`` is a standard id (:func:`standard_collection`) and ``spec`` is not its
+    collection, or the first episodes of it: what trains on the id would get other data without a word."""
+    standard = standard_collection(dataset_id)
+    if standard is None:
+        return
+    fields = ("policy", "seed", "noise", "env_kwargs", "algo")
+    differs = [name for name in fields if getattr(spec, name) != getattr(standard, name)]
+    if spec.n_episodes > standard.n_episodes:
+        differs.append("n_episodes")
+    if differs:
+        given = ", ".join(f"{name} {getattr(spec, name)!r}" for name in differs)
+        defined = ", ".join(f"{name} {getattr(standard, name)!r}" for name in differs)
+        own = dataset_id.rsplit("-v", 1)[0] + "-custom-v0"
+        raise DatasetError(
+            f"{dataset_id} is a standard dataset id, defined as {standard.n_episodes} episodes or its first ones with "
+            f"{defined}; this collection has {given}: give it an id of its own, e.g. --dataset-id {own}"
+        )
+
+
+def _made_in(dataset: MinariDataset) -> str:
+    """The env id and action mode a dataset was collected in, from its metadata."""
+    metadata = dataset.storage.metadata
+    try:
+        action_mode = json.loads(metadata.get("env_kwargs") or "{}").get("action_mode", "absolute")
+    except (TypeError, ValueError):
+        action_mode = "?"
+    return f"{metadata.get('env_id', '?')}, action_mode {action_mode!r}"
+
+
 #: The metadata a combined dataset takes from its first source.
 METADATA_OF_THE_FIRST = ("env_id", "env_kwargs", "ref_min_score", "ref_max_score")
 
@@ -825,7 +860,12 @@ def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False
         files.recover()
         _prepare(dataset_id, overwrite)
         sources = [load_dataset(source) for source in source_ids]
-        env_spec = validate_datasets_to_combine(sources)
+        try:
+            env_spec = validate_datasets_to_combine(sources)
+        except ValueError:  # Minari's message names env specs, not what differs
+            made = "; ".join(f"{source_id}: {_made_in(source)}" for source_id, source in zip(source_ids, sources, strict=True))
+            raise DatasetError(f"cannot mix datasets of different envs or action modes ({made}): mix datasets of one env "
+                               "and action mode") from None  # fmt: skip
         if files.holds_anything():
             if not overwrite:
                 raise DatasetError(_other_collection(files, files.spec()))

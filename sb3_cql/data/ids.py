@@ -50,8 +50,21 @@ def dataset_id(
     return f"{NAMESPACE}/{env_id}/{policy}{suffix}-v{version}"
 
 
+def check_dataset_id(dataset_id: Any) -> None:
+    """A :class:`~sb3_cql.data.DatasetError` unless ``dataset_id`` is an id as Minari takes it,
+    ``[NAMESPACE/]NAME-vVERSION``, whose folder is inside the datasets folder (no empty, ``.`` or ``..`` part)."""
+    valid = isinstance(dataset_id, str) and re.fullmatch(r"[\w:.\-/]*[\w:.\-]-v\d+", dataset_id) is not None
+    if not valid or any(part in ("", ".", "..") for part in dataset_id.split("/")):
+        from sb3_cql.data.replay import DatasetError
+
+        raise DatasetError(f"{dataset_id!r} is not a dataset id: write [NAMESPACE/]NAME-vVERSION, a version at the end and "
+                           f"no '..' (e.g. {NAMESPACE}/Panda-v0/pid-v0)")  # fmt: skip
+
+
 def dataset_path(dataset_id: str) -> Path:
-    """Where Minari keeps ``dataset_id`` (under ``MINARI_DATASETS_PATH``, or ``~/.minari/datasets``)."""
+    """Where Minari keeps ``dataset_id`` (under ``MINARI_DATASETS_PATH``, or ``~/.minari/datasets``); an id that is
+    not one (:func:`check_dataset_id`) is a :class:`~sb3_cql.data.DatasetError`."""
+    check_dataset_id(dataset_id)
     return get_dataset_path(dataset_id)
 
 

@@ -224,6 +224,13 @@ class DatasetFiles:
     def holds_anything(self) -> bool:
         return self.partial.is_dir() and any(self.partial.iterdir())
 
+    def holds_no_episodes(self) -> bool:
+        """Whether the partial folder is a collection that kept no episode (its spec, an empty ``episodes/``): one
+        refused or interrupted before its first file, which another collection may replace without losing anything."""
+        if not self.partial.is_dir() or {path.name for path in self.partial.iterdir()} - {ids.SPEC_FILE, self.episodes.name}:
+            return False
+        return not self.episodes.is_dir() or not any(self.episodes.iterdir())
+
     def episode_files(self) -> list[tuple[range, Path]]:
         """The episode files of the collection, in episode order: ``(indices, path)``."""
         if not self.episodes.is_dir():

@@ -49,9 +49,14 @@ def load_dataset(dataset_id: str) -> MinariDataset:
         )
     try:
         dataset = MinariDataset(path / "data")
-        list(dataset.storage.get_episode_metadata([0, dataset.total_episodes - 1]))  # opens the data file
+        empty = dataset.total_episodes == 0
+        if not empty:
+            list(dataset.storage.get_episode_metadata([0, dataset.total_episodes - 1]))  # opens the data file
     except Exception as error:
         raise DatasetError(f"dataset {dataset_id} at {path} is truncated or corrupt: {error}") from error
+    if empty:
+        raise DatasetError(f"dataset {dataset_id} at {path} holds no episodes: nothing to train on; collect it again "
+                           "(python -m sb3_cql.data collect ... --overwrite)")  # fmt: skip
     return dataset
 
 
@@ -160,6 +165,8 @@ def fill_replay_buffer(
 
     if isinstance(dataset, str):
         dataset = load_dataset(dataset)
+    if buffer_observation_space is not None and _shapes(dataset.observation_space) == _shapes(buffer_observation_space):
+        observation_space = buffer_observation_space  # images held as the policy sees them (channel-first): as they are
     check_spaces(dataset, observation_space, action_space)
     name = _name(dataset)
     # The storage's own count: MinariDataset.total_steps reads every episode's attributes.
@@ -292,6 +299,11 @@ def _transposed_keys(data_space: spaces.Space, buffer_space: spaces.Space) -> se
                 raise DatasetError(f"the buffer's observation shape {buffer_shape} does not hold the data's {shape}")
             transposed.add(key)
     return transposed
+
+
+def _shapes(space: spaces.Space) -> dict[str | None, Any]:
+    """The shape of a Box, or of each Box of a Dict, by key (``None`` for a Box)."""
+    return {key: getattr(item, "shape", None) for key, item in _space_items(space)}
 
 
 def _space_items(space: spaces.Space) -> list[tuple[str | None, spaces.Space]]:

@@ -327,16 +327,18 @@ def _fail(message: str) -> NoReturn:
     raise SystemExit(2) from None
 
 
-def zoo_parse_error(option: str, item: str, problem: BaseException | str, prog: str = PROG) -> NoReturn:
+def zoo_parse_error(
+    option: str, item: str, problem: BaseException | str, hint: str | None = None, prog: str = PROG
+) -> NoReturn:
     """End a zoo command on one line for a ``KEY:VALUE`` item of ``option`` (``--hyperparams``, ``--env-kwargs``) that
-    the zoo cannot read (it evaluates VALUE as Python), saying what to type instead; status 2. The one place the
-    zoo's parse errors become a line."""
+    the zoo cannot read (it evaluates VALUE as Python): what is wrong, and ``hint`` or what to type instead; status 2.
+    The one place the zoo's parse errors become a line."""
     key, _, value = item.partition(":")
     why = f"{type(problem).__name__}: {problem}" if isinstance(problem, BaseException) else problem
-    quoted = shlex.quote(f"{key or 'KEY'}:'{value}'")
-    print(f"{prog}: error: {option} {shlex.quote(item)}: {' '.join(why.split())}; write KEY:VALUE with a Python value: "
-          f"a number as it is ({key or 'batch_size'}:64), a string in quotes inside the shell's ({quoted})",
-          file=sys.stderr)  # fmt: skip
+    if hint is None:
+        hint = (f"write KEY:VALUE with a Python value: a number as it is (batch_size:64), a string in quotes "
+                f"inside the shell's ({key or 'KEY'}:\"'{value}'\")")  # fmt: skip
+    print(f"{prog}: error: {option} {item}: {' '.join(why.split())}; {hint}", file=sys.stderr)
     raise SystemExit(2)
 
 
@@ -347,14 +349,15 @@ def _store_dict_call(store_dict: type) -> Any:
 
     @functools.wraps(call)
     def __call__(self: Any, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+        prog = f"python -m rl_zoo3.{Path(parser.prog).stem}"
         for item in values:
             key, separator, value = item.partition(":")
             if not key or not separator:
-                zoo_parse_error(option_string, item, "not KEY:VALUE", parser.prog)
+                zoo_parse_error(option_string, item, "not KEY:VALUE", prog=prog)
             try:
                 eval(value)  # as the zoo does next
             except Exception as error:
-                zoo_parse_error(option_string, item, error, parser.prog)
+                zoo_parse_error(option_string, item, error, prog=prog)
         call(self, parser, namespace, values, option_string)
 
     __call__._sb3_cql_wrapped = True  # type: ignore[attr-defined]
@@ -365,9 +368,9 @@ def _check_hyperparameters(algo: type, hyperparams: dict[str, Any]) -> None:
     """Before the zoo reads them: a key that neither the zoo nor ``algo`` takes is a
     :class:`~sb3_cql.common.offline.KeywordError` naming the closest one; a schedule that is neither a number nor
     ``lin_<initial value>`` is :func:`zoo_parse_error`'s line."""
-    from sb3_cql.common.offline import check_keywords
-
-    check_keywords(algo.__name__, hyperparams, [*inspect.signature(algo.__init__).parameters, *ZOO_KEYS])
+    refuse = getattr(algo, "refuse_unknown_keywords", None)
+    if refuse is not None:
+        refuse([key for key in hyperparams if key not in ZOO_KEYS])
     for key in SCHEDULE_KEYS:
         value = hyperparams.get(key)
         if isinstance(value, str):
@@ -378,7 +381,7 @@ def _check_hyperparameters(algo: type, hyperparams: dict[str, Any]) -> None:
                 valid = False
             if not valid:
                 zoo_parse_error("--hyperparams", f"{key}:{value!r}", f"{key} must be a number > 0 or a linear schedule "
-                                f"'lin_<initial value>' (e.g. {key}:0.0003, {key}:\"'lin_0.0003'\")")  # fmt: skip
+                                f"'lin_<initial value>'", f"e.g. {key}:0.0003 or {key}:\"'lin_0.0003'\"")  # fmt: skip
 
 
 def _atomic_saves(model: Any) -> None:
