@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_cql import BC, CQL
+from sb3_cql import BC, CQL, IQL
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,7 +30,7 @@ def documented_keywords(page: Path) -> set[str]:
     return set(re.findall(r"<strong>(\w+)</strong>", page.read_text()))
 
 
-@pytest.mark.parametrize(("algorithm", "page"), [(CQL, "cql.html"), (BC, "bc.html")])
+@pytest.mark.parametrize(("algorithm", "page"), [(CQL, "cql.html"), (BC, "bc.html"), (IQL, "iql.html")])
 def test_the_api_pages_document_every_keyword(html, algorithm, page):
     keywords = set(inspect.signature(algorithm.__init__).parameters) - {"self"}
     assert keywords - documented_keywords(html / page) == set()

@@ -41,10 +41,12 @@ class CQL(OfflineSAC):
 
     ``cql_alpha * (T * logsumexp_a(Q(s, a) / T) - Q(s, a_data))``
 
-    where the log-sum-exp runs over ``cql_n_actions`` uniform actions, ``cql_n_actions`` current-policy actions at
+    beside its full TD loss (the critics' mean squared errors summed, at the reference implementations' relative
+    weights), where the log-sum-exp runs over ``cql_n_actions`` uniform actions, ``cql_n_actions`` current-policy actions at
     ``s`` and ``cql_n_actions`` policy actions at ``s'`` (all scored at ``s``), importance-weighted by their
     densities, and ``T`` is ``cql_temperature``. With ``cql_target_action_gap`` set, the term becomes
-    ``alpha' * (term - gap)`` with the multiplier ``alpha'`` learned by dual gradient ascent.
+    ``alpha' * cql_alpha * (gap - cql_target_action_gap)`` with the multiplier ``alpha'`` learned by dual gradient
+    ascent (tinkoff-ai/CORL's form).
 
     Training is offline (:class:`~sb3_cql.common.OfflineSAC`): the replay buffer is filled from ``dataset`` and
     :meth:`learn` makes one gradient step per timestep, stepping the env never (it only gives the spaces, and
@@ -57,7 +59,8 @@ class CQL(OfflineSAC):
     with the samples' ``discounts``, as SAC's (the critics' rewards summed over those steps, :meth:`critic_rewards`).
 
     Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
-    learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere. A setting training
+    learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere (``cql_alpha`` 10,
+    CORL's). A setting training
     cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``, ``batch_size`` 0, ..., also given to
     :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its value; so is a replay buffer given as
     ``dataset`` that holds a NaN or an infinity. ``save`` and ``save_replay_buffer`` leave a file whole or none.
@@ -77,10 +80,16 @@ class CQL(OfflineSAC):
     :param ent_coef: SAC's entropy coefficient (``"auto"`` to learn it).
     :param target_entropy: SAC's target entropy when learning ``ent_coef``.
     :param target_update_interval: gradient steps between target updates.
-    :param cql_alpha: weight of the conservative term.
+    :param cql_alpha: weight of each critic's conservative gap against its full TD loss (its mean squared error), as
+        tinkoff-ai/CORL's ``cql_alpha`` and the CQL paper's code weigh it (d3rlpy's ``conservative_weight`` multiplies
+        the critics' mean gap, so its ``w`` is ``w / 2`` here with two critics). The default, 10, is CORL's, and trains
+        as the thesis's 5 did against SAC's halved TD loss. ``0`` drops the term, not the rest: it is SAC with the
+        deterministic backup (on by default), the imitation anchor and the reward shaping still applied, where set;
+        SAC's own update also needs ``cql_deterministic_backup=False``, ``actor_bc_weight=0`` and no reward shaping.
     :param cql_n_actions: actions sampled per state for each of the three log-sum-exp groups.
     :param cql_temperature: temperature ``T`` of the log-sum-exp.
-    :param cql_target_action_gap: with a value, learn a Lagrange multiplier that keeps the conservative gap near it.
+    :param cql_target_action_gap: with a value, learn a Lagrange multiplier ``alpha'`` that keeps the conservative gap
+        near it: the term becomes ``alpha' * cql_alpha * (gap - cql_target_action_gap)`` per critic, as CORL's.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
     :param cql_calibrated: calibrated CQL, Cal-QL (Nakamoto et al. 2023, https://arxiv.org/abs/2303.05479): in the
@@ -97,13 +106,14 @@ class CQL(OfflineSAC):
     :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
         ``bc_steps`` to ``actor_learning_rate`` (imitation needs a larger rate than following Q, and a clone settles
         only as its rate decays); ``None`` for ``actor_learning_rate`` throughout.
-    :param actor_bc_weight: after the warm start, keep imitating in the actor loss: SAC's actor loss divided by the
-        batch's mean ``|Q|`` (detached) plus ``actor_bc_weight`` times the warm start's behaviour-cloning loss, as in
-        TD3+BC (Fujimoto & Gu 2021, https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight``
-        (its default 2.5 is 0.4 here). ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed
-        (the documentation's *What we learned* page): without it, following Q broke a working clone within 1,000
-        steps; with a weight of 4 the clone held through 21,000 Q steps, neither better nor worse than the clone on
-        the three tasks; with 1 it slipped.
+    :param actor_bc_weight: after the warm start, keep imitating in the actor loss: SAC's actor loss with its Q term
+        divided by the batch's mean ``|Q|`` (detached; the entropy term as SAC weighs it) plus ``actor_bc_weight``
+        times the warm start's behaviour-cloning loss, as in TD3+BC (Fujimoto & Gu 2021,
+        https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight`` (its default 2.5 is 0.4 here).
+        ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed (the documentation's *What we
+        learned* page, with the entropy term then divided by mean ``|Q|`` too): without it, following Q broke a
+        working clone within 1,000 steps; with a weight of 4 the clone held through 21,000 Q steps, neither better nor
+        worse than the clone on the three tasks; with 1 it slipped.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
         rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
@@ -125,6 +135,9 @@ class CQL(OfflineSAC):
         critics work on chunks of ``action_chunk`` actions, the TD target spans the chunk (``n_steps = action_chunk``),
         and the conservative term samples whole chunks; each chunk runs open loop when the model acts. ``1``: one action
         a state.
+    :param best_of_n: act by ranking: draw ``best_of_n`` candidate actions (or chunks) from the actor at each decision
+        and take the one the critics value most (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the
+        model, changed by ``load(path, best_of_n=N)``. ``1`` (the default): the actor's own action.
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's; by default SB3's choice,
         ``NStepReplayBuffer`` for ``n_steps`` > 1).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
@@ -167,7 +180,7 @@ class CQL(OfflineSAC):
         ent_coef: str | float = "auto",
         target_entropy: str | float = "auto",
         target_update_interval: int = 1,
-        cql_alpha: float = 5.0,
+        cql_alpha: float = 10.0,
         cql_n_actions: int = 10,
         cql_temperature: float = 1.0,
         cql_target_action_gap: float | None = None,
@@ -188,6 +201,7 @@ class CQL(OfflineSAC):
         action_noise: ActionNoise | None = None,
         deterministic_rollouts: bool = False,
         action_chunk: int = 1,
+        best_of_n: int = 1,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
@@ -231,6 +245,7 @@ class CQL(OfflineSAC):
             action_noise=action_noise,
             deterministic_rollouts=deterministic_rollouts,
             action_chunk=action_chunk,
+            best_of_n=best_of_n,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,

@@ -1,0 +1,258 @@
+"""IQL's update against a hand computation, best-of-N acting, long discounts, and filtered imitation."""
+
+import copy
+
+import gymnasium as gym
+import minari
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from rollouts import random_rollouts, spaces_env
+from stable_baselines3.common.buffers import ReplayBuffer
+
+from sb3_cql import BC, CQL, IQL
+from sb3_cql.common import SettingError, TrainingDivergedError, returns_to_go
+from sb3_cql.iql import expectile_loss
+from sb3_cql.iql.policies import IQLActor
+
+TINY = {"net_arch": [16]}
+
+
+def pendulum_iql(**kwargs) -> IQL:
+    env = gym.make("Pendulum-v1")
+    settings = {"batch_size": 16, "seed": 0, "policy_kwargs": TINY, **kwargs}
+    return IQL("MlpPolicy", env, dataset=random_rollouts(gym.make("Pendulum-v1"), 300), **settings)
+
+
+def test_the_expectile_loss_weights_each_side_of_zero_by_hand():
+    differences = th.tensor([[2.0], [-1.0], [0.5], [-3.0]])
+    by_hand = (0.9 * 4.0 + 0.1 * 1.0 + 0.9 * 0.25 + 0.1 * 9.0) / 4
+    assert expectile_loss(differences, 0.9).item() == pytest.approx(by_hand)
+    assert expectile_loss(differences, 0.5).item() == pytest.approx(0.5 * np.mean(differences.numpy() ** 2))
+
+
+@pytest.mark.parametrize("n_steps", [1, 3])
+def test_one_update_is_the_papers_losses_computed_by_hand(n_steps):
+    """Value by expectile regression on the target critics, advantage weights from the updated value, critics by TD to
+    V(s') with the samples' n-step discounts at gamma 0.999 and shaped rewards: each logged loss equals the same
+    computation by hand on the batch the step drew, with the networks as they were."""
+    model = pendulum_iql(gamma=0.999, expectile=0.8, temperature=2.0, max_weight=5.0, n_steps=n_steps,
+                         reward_scale=2.0, reward_bias=-1.0)  # fmt: skip
+    model._setup_learn(1, None)  # the logger
+    before = copy.deepcopy(model.policy)
+    state = np.random.get_state()
+    batch = model.replay_buffer.sample(16)
+    np.random.set_state(state)  # train() draws this very batch
+    model.train(gradient_steps=1, batch_size=16)
+    logged = model.logger.name_to_value
+
+    obs, actions = batch.observations, batch.actions
+    with th.no_grad():
+        q_data = th.min(*before.critic_target(obs, actions))
+        u = q_data - before.value_net(obs)
+        value_loss = (th.where(u < 0, 0.2, 0.8) * u**2).mean()
+        weights = th.exp(2.0 * (q_data - model.value_net(obs))).clamp(max=5.0)  # the value after its step
+        discounts = batch.discounts if n_steps > 1 else 0.999
+        steps = (1 - batch.discounts) / (1 - 0.999) if n_steps > 1 else 1.0
+        target = 2.0 * batch.rewards - 1.0 * steps + (1 - batch.dones) * discounts * model.value_net(batch.next_observations)
+        critic_loss = sum(((q - target) ** 2).mean() for q in before.critic(obs, actions))
+    if n_steps > 1:
+        assert (batch.discounts < 0.999).any()  # some samples summed several steps
+    assert logged["train/value_loss"] == pytest.approx(value_loss.item(), rel=1e-5)
+    assert logged["train/iql_weight"] == pytest.approx(weights.mean().item(), rel=1e-5)
+    assert logged["train/critic_loss"] == pytest.approx(critic_loss.item(), rel=1e-5)
+
+
+def test_the_actor_regresses_on_the_data_actions_weighted_by_advantage():
+    """The actor's loss is -mean(w * log N(a | tanh(mu), std)): a finite likelihood also for actions at the bounds."""
+    actor = pendulum_iql().actor
+    assert isinstance(actor, IQLActor)
+    obs = th.zeros(3, 3)
+    actions = th.tensor([[1.0], [-1.0], [0.2]])
+    mean_actions, log_std, _ = actor.get_action_dist_params(obs)
+    by_hand = th.distributions.Normal(th.tanh(mean_actions), log_std.exp()).log_prob(actions).sum(-1)
+    log_prob = actor.log_prob_of(obs, actions)
+    assert th.isfinite(log_prob).all()
+    th.testing.assert_close(log_prob, by_hand)
+
+
+class LinearCriticEnv(gym.Env):
+    """Box observations of 2, actions of 3 (offline training never steps it)."""
+
+    observation_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        return self.observation_space.sample(), {}
+
+    def step(self, action):
+        return self.observation_space.sample(), 0.0, False, True, {}
+
+
+@pytest.mark.parametrize("algorithm", [IQL, CQL])
+def test_best_of_n_acts_with_the_candidate_a_known_critic_values_most(algorithm):
+    """Critics that value an action by its first coordinate (Q = a_0, the second critic higher still): best-of-N
+    returns the sampled candidate of largest a_0, and more candidates find a larger one."""
+    env = LinearCriticEnv()
+    kwargs = {"cql_n_actions": 2} if algorithm is CQL else {}
+    model = algorithm("MlpPolicy", env, buffer_size=10, policy_kwargs={"net_arch": []}, best_of_n=16, seed=0, **kwargs)
+    with th.no_grad():
+        for offset, q_net in zip((0.0, 1.0), model.critic.q_networks, strict=True):
+            linear = q_net[0]  # Linear(features + actions -> 1)
+            linear.weight.zero_()
+            linear.weight[0, 2] = 1.0  # the first action coordinate, after the 2 observation features
+            linear.bias.fill_(offset)
+    policy = model.policy
+    observations = th.tensor([[0.1, -0.3], [0.5, 0.2]])
+    mean_actions, log_std, _ = policy.actor.get_action_dist_params(observations)
+    th.manual_seed(1)
+    chosen = policy.best_of_n_actions(observations, 16, deterministic=False)
+    th.manual_seed(1)
+    noise = th.randn(2 * 16, 3)
+    candidates = policy.candidate_actions(mean_actions.repeat_interleave(16, 0), log_std.repeat_interleave(16, 0), noise)
+    best = candidates.reshape(2, 16, 3)[th.arange(2), candidates.reshape(2, 16, 3)[:, :, 0].argmax(dim=1)]
+    th.testing.assert_close(chosen, best)
+    many = policy.best_of_n_actions(observations, 512, deterministic=True)
+    assert (many[:, 0] >= chosen[:, 0]).all()
+    assert (many[:, 0] > 0.5).all()  # the tails of the actor's spread, where one sample rarely reaches
+
+
+def test_best_of_n_is_saved_with_the_model_changed_by_load_and_repeatable(tmp_path):
+    model = pendulum_iql(best_of_n=8)
+    model.learn(20)
+    observation = np.array([0.3, -0.2, 0.5], dtype=np.float32)
+    action, _ = model.predict(observation, deterministic=True)
+    again, _ = model.predict(observation, deterministic=True)
+    np.testing.assert_array_equal(action, again)  # the same observation, the same candidates
+    model.save(tmp_path / "iql")
+    loaded = IQL.load(tmp_path / "iql")
+    assert loaded.policy.best_of_n == 8
+    np.testing.assert_array_equal(loaded.predict(observation, deterministic=True)[0], action)
+    single = IQL.load(tmp_path / "iql", best_of_n=1)
+    assert single.policy.best_of_n == 1
+    np.testing.assert_allclose(single.predict(observation, deterministic=True)[0],
+                               model.policy.unscale_action(np.tanh(mean_of(model, observation))), rtol=1e-5)  # fmt: skip
+    with pytest.raises(SettingError, match="best_of_n must be an integer >= 1, got 0"):
+        pendulum_iql(best_of_n=0)
+
+
+def mean_of(model, observation):
+    with th.no_grad():
+        mean_actions, _, _ = model.actor.get_action_dist_params(th.as_tensor(observation)[None])
+    return mean_actions.numpy()[0]
+
+
+def test_best_of_n_ranks_whole_chunks_and_runs_them_open_loop():
+    model = pendulum_iql(best_of_n=4, action_chunk=3)
+    model.learn(10)
+    observation = np.array([0.3, -0.2, 0.5], dtype=np.float32)
+    action, state = model.predict(observation, deterministic=True)
+    chunk = state[0][0]
+    assert chunk.shape == (3, 1)
+    second, state = model.predict(observation + 1, state, deterministic=True)
+    np.testing.assert_array_equal(second, chunk[1])  # open loop: the chunk's next action, whatever the observation
+
+
+def test_a_sparse_task_at_gamma_0_999_backs_up_30_steps_on_the_success_scale():
+    """Reward 1 at the end of a terminated episode, gamma 0.999 and 30-step backups: a sample that reaches the success
+    k steps ahead has the target 0.999^(k-1), the others bootstrap on V(s') with 0.999 to the steps they summed."""
+    env = spaces_env(spaces.Box(-1.0, 1.0, (1,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32))
+    buffer = ReplayBuffer(400, env.observation_space, env.action_space)
+    for episode in range(10):
+        for step in range(40):
+            done = step == 39
+            reward = 1.0 if done and episode % 2 == 0 else 0.0
+            buffer.add(np.array([step / 40]), np.array([(step + 1) / 40]), np.array([0.1]), np.array([reward]),
+                       np.array([done]), [{"TimeLimit.truncated": done and reward == 0}])  # fmt: skip
+    model = IQL("MlpPolicy", env, dataset=buffer, gamma=0.999, n_steps=30, batch_size=64, policy_kwargs=TINY, seed=0)
+    model.learn(5)
+    batch = model.replay_buffer.sample(512)
+    with th.no_grad():
+        targets = model.compute_target(batch, batch.discounts)
+        bootstrap = batch.discounts * model.value_net(batch.next_observations)
+    reached = (batch.dones > 0).flatten()
+    steps_ahead = 40 - th.round(batch.observations[reached, 0] * 40)
+    assert reached.any() and (~reached).any()
+    th.testing.assert_close(targets[reached, 0], 0.999 ** (steps_ahead - 1))
+    th.testing.assert_close(targets[~reached], bootstrap[~reached])
+    summed = th.round(th.log(batch.discounts[~reached]) / np.log(0.999))
+    assert set(summed.int().flatten().tolist()) <= set(range(1, 31)) and (summed == 30).any()
+
+
+def test_calibrated_cql_at_gamma_0_999_bounds_by_returns_in_the_same_gamma_and_rewards():
+    env = spaces_env(spaces.Box(-1.0, 1.0, (1,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32))
+    buffer = ReplayBuffer(20, env.observation_space, env.action_space)
+    for step in range(5):
+        buffer.add(np.array([step]), np.array([step + 1]), np.array([0.0]), np.array([float(step == 4)]),
+                   np.array([step == 4]), [{"TimeLimit.truncated": False}])  # fmt: skip
+    model = CQL("MlpPolicy", env, dataset=buffer, gamma=0.999, cql_calibrated=True, reward_scale=4.0, reward_bias=-2.0,
+                batch_size=4, cql_n_actions=2, policy_kwargs=TINY, seed=0)  # fmt: skip
+    expected = returns_to_go([-2.0, -2.0, -2.0, -2.0, 2.0], truncated=False, gamma=0.999)
+    np.testing.assert_allclose(model.replay_buffer.returns_to_go[:5, 0], expected, rtol=1e-6)
+    np.testing.assert_allclose(expected[0], -2 * (1 - 0.999**4) / (1 - 0.999) + 2 * 0.999**4, rtol=1e-6)
+    model.learn(5)
+
+
+def test_a_diverging_update_stops_with_one_line_before_the_step():
+    model = pendulum_iql(reward_scale=1e38, learning_rate=1.0)
+    with pytest.raises(TrainingDivergedError, match=r"IQL's \w+ loss is (nan|inf) at gradient step \d+: training diverged"):
+        model.learn(200)
+
+
+@pytest.mark.parametrize(
+    ("keywords", "message"),
+    [
+        ({"expectile": 1.0}, r"expectile must be in \[0.5, 1\), got 1.0"),
+        ({"expectile": 0.3}, r"expectile must be in \[0.5, 1\), got 0.3"),
+        ({"temperature": -1.0}, r"temperature must be a (finite )?number >= 0, got -1.0"),
+        ({"max_weight": 0.0}, r"max_weight must be a (finite )?number > 0, got 0.0"),
+        ({"reward_bias": float("nan")}, "reward_bias must be a finite number, got nan"),
+    ],
+)
+def test_settings_outside_their_range_are_one_line(keywords, message):
+    with pytest.raises(SettingError, match=message):
+        pendulum_iql(**keywords)
+
+
+def sparse_minari_dataset(tmp_path, monkeypatch) -> minari.MinariDataset:
+    """Six episodes of a one-dimensional task whose returns are 0, 1, 2, 3, 4, 5."""
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    env = gym.make("Pendulum-v1")
+    episodes = []
+    for episode in range(6):
+        rewards = np.zeros(8)
+        rewards[:episode] = 1.0
+        observations = np.full((9, 3), float(episode), dtype=np.float32)
+        episodes.append(minari.data_collector.EpisodeBuffer(
+            observations=observations, actions=np.full((8, 1), episode / 10, dtype=np.float32), rewards=rewards,
+            terminations=np.zeros(8, bool), truncations=np.eye(8, dtype=bool)[-1],
+        ))  # fmt: skip
+    return minari.create_dataset_from_buffers("test/returns-v0", episodes, env=env, algorithm_name="t", author="t",
+                                              author_email="t", code_permalink="t", description="t")  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("keywords", "kept"),
+    [({"min_return": 4.0}, {4, 5}), ({"top_fraction": 0.5}, {3, 4, 5}), ({"min_return": 1.0, "top_fraction": 0.2}, {5})],
+)
+def test_filtered_behaviour_cloning_loads_the_selected_episodes_only(tmp_path, monkeypatch, keywords, kept):
+    dataset = sparse_minari_dataset(tmp_path, monkeypatch)
+    model = BC("MlpPolicy", gym.make("Pendulum-v1"), dataset=dataset, batch_size=4, policy_kwargs=TINY,
+               normalize_observations=False, **keywords)  # fmt: skip
+    size = model.replay_buffer.size()
+    assert size == 8 * len(kept)
+    assert set(model.replay_buffer.observations[:size, 0, 0].astype(int).tolist()) == kept
+    model.learn(3)
+
+
+def test_filtered_behaviour_cloning_refuses_what_it_cannot_select(tmp_path, monkeypatch):
+    dataset = sparse_minari_dataset(tmp_path, monkeypatch)
+    env = gym.make("Pendulum-v1")
+    with pytest.raises(SettingError, match=r"no episode of test/returns-v0 has a return >= 9 \(it has 6 episodes, the "
+                                           r"highest return 5\)"):  # fmt: skip
+        BC("MlpPolicy", env, dataset=dataset, min_return=9.0)
+    with pytest.raises(SettingError, match=r"top_fraction must be in \(0, 1\] or None, got 0"):
+        BC("MlpPolicy", env, dataset=dataset, top_fraction=0)
+    with pytest.raises(SettingError, match="a replay buffer has no episodes to select"):
+        BC("MlpPolicy", env, dataset=random_rollouts(gym.make("Pendulum-v1"), 20), min_return=1.0)
