@@ -23,7 +23,8 @@ Printed::
     angle (deg)  closings  lifted  data's return  critic's value
         0-30         70    0.01         -197.1          -430.2
     ...
-    rank correlation over the closings: critic's value vs data's return 0.10, vs angle 0.02; data's return vs angle 0.05
+    rank correlation over the closings: critic's value vs lifted 0.12, vs data's return 0.10, vs angle 0.02; data's
+    return vs angle 0.05
     1385 hovering states more than 20 deg from a grasping yaw: value turned towards it minus away from it +0.01 ...
 
 The model must act in delta actions (``action_mode: delta``), whose wrist component turns the hand. Nothing is
@@ -43,7 +44,7 @@ from rl_zoo3 import ALGOS
 from scipy import stats
 
 import envs
-import sb3_cql  # noqa: F401  (registers cql and bc with the zoo)
+import sb3_cql  # noqa: F401  (registers cql, bc and iql with the zoo)
 from envs.pd_controller import GRIPPER_OPEN_WIDTH, aligned_yaw, closing_angle, closing_steps, hand_yaw
 from sb3_cql.common import returns_to_go
 from sb3_cql.data import DatasetError, load_dataset
@@ -160,8 +161,9 @@ def main(argv: list[str] | None = None) -> None:
                       f"{q[group].mean():>15.1f}")  # fmt: skip
             else:
                 print(f"{low:>6}-{high:<4} {0:>9}       -              -               -")
-        print(f"rank correlation over the closings: critic's value vs data's return {spearman(q, returns):.2f}, "
-              f"vs angle {spearman(q, angles):.2f}; data's return vs angle {spearman(returns, angles):.2f}")  # fmt: skip
+        print(f"rank correlation over the closings: critic's value vs lifted {spearman(q, lifted.astype(float)):.2f}, "
+              f"vs data's return {spearman(q, returns):.2f}, vs angle {spearman(q, angles):.2f}; data's return vs angle "
+              f"{spearman(returns, angles):.2f}")  # fmt: skip
     if not hovers:
         print("no hovering states more than 20 deg from a grasping yaw")
         return
