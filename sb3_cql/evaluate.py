@@ -37,6 +37,7 @@ import itertools
 import os
 import re
 import sys
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -366,7 +367,7 @@ def load_model(parser: argparse.ArgumentParser, path: str, algo: str, env_id: st
         fail(parser, f"no saved model at {path}" + (" (a folder)" if Path(path).is_dir() else ""))
     from sb3_cql.common.atomic import saved_model_problem
 
-    problem = saved_model_problem(found)
+    problem = saved_model_problem(found) if zipfile.is_zipfile(found) else None  # a zip without a model's members
     if problem is not None:
         fail(parser, f"cannot load {found} as a {algo} model: {problem}")
     try:

@@ -225,7 +225,7 @@ def test_bad_arguments_are_usage_errors(capsys, arguments, message):
             "bc",
             "cannot load {folder}/text.zip as a bc model (ValueError: Error: the file {folder}/text.zip wasn't",
         ),
-        ("truncated.zip", "cql", "cannot load {folder}/truncated.zip as a cql model ("),
+        ("truncated.zip", "cql", "cannot load {folder}/truncated.zip as a cql model"),
         ("bc_delta.zip", "td3", "cannot load {folder}/bc_delta.zip as a td3 model (AttributeError: "),
         ("bc_delta.zip", "nope", "unknown --algo 'nope': one of a2c, "),
         (

@@ -568,3 +568,22 @@ def test_bad_noise_settings_end_the_run_on_one_line(monkeypatch, tmp_path, setti
     manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "--hyperparams", *settings)
     with pytest.raises(SystemExit, match=f"^python -m rl_zoo3.train: error: {message}$"):
         manager.read_hyperparameters()
+
+
+@checks("train.py reads --hyperparams and --env-kwargs with utils.StoreDict, which evals each VALUE")
+def test_train_reads_key_value_items_with_store_dict_and_a_value_that_does_not_evaluate_is_one_line(
+    monkeypatch, tmp_path, capsys
+):
+    parser, _ = zoo_parser()
+    actions = {action.dest: action for action in parser._actions}
+    assert isinstance(actions["hyperparams"], utils.StoreDict) and isinstance(actions["env_kwargs"], utils.StoreDict)
+    made = made_by_train(monkeypatch, tmp_path, *CQL_RUN, "--hyperparams", "batch_size:2*32")
+    assert made.custom_hyperparams == {"batch_size": 64}  # evaluated as Python
+    with pytest.raises(SystemExit) as exit_:
+        made_by_train(monkeypatch, tmp_path, *CQL_RUN, "--env-kwargs", "action_mode:delta")
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "python -m rl_zoo3.train: error: --env-kwargs action_mode:delta: NameError: name 'delta' is not defined; write "
+        "KEY:VALUE with a Python value: a number as it is (batch_size:64), a string in quotes inside the shell's "
+        "(action_mode:\"'delta'\")"
+    ]

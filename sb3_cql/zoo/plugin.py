@@ -99,6 +99,8 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
                 "a config's n_eval_episodes replaces the default"),
     ZooInternal("option", "--save-freq", (ZOO_DEFAULT_SAVE_FREQ, "save_freq"), "a config's save_freq replaces the default"),
     ZooInternal("option", "--env-kwargs", (None, "env_kwargs"), "None when not given: the config's go to args.yml then"),
+    ZooInternal("behaviour", "train.py reads --hyperparams and --env-kwargs with utils.StoreDict, which evals each VALUE",
+                (), "a VALUE that does not evaluate is one line saying what to type (StoreDict.__call__ wrapped)"),
     ZooInternal("behaviour", "train.train parses sys.argv[1:]",
                 (), "the only record of which options were given: the Namespace holds values, the parser is local"),
     ZooInternal("behaviour", "train.train calls learn, then save_trained_model", (),
@@ -629,7 +631,7 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 _load_checkpoint_buffer(model, Path(self.trained_agent))
         # The zoo ends training quietly on Ctrl-C (it catches KeyboardInterrupt) and saves the model: note that it
         # was cut short, to say so after the save.
-        self._sb3_cql_interrupted, self._sb3_cql_start_step = False, model.num_timesteps
+        self._sb3_cql_interrupted, self._sb3_cql_start_step = False, getattr(model, "num_timesteps", None)
 
         def note_and_interrupt(signum: int, frame: Any) -> None:
             self._sb3_cql_interrupted = True
@@ -649,7 +651,8 @@ def _extend_exp_manager(exp_manager: ModuleType) -> None:
                 signal.signal(signal.SIGINT, previous)
 
     def save_trained_model(self, model: Any) -> None:
-        if getattr(self, "_sb3_cql_interrupted", False) and model.num_timesteps == self._sb3_cql_start_step:
+        interrupted = getattr(self, "_sb3_cql_interrupted", False)
+        if interrupted and getattr(model, "num_timesteps", None) == getattr(self, "_sb3_cql_start_step", -1):
             # Ctrl-C before the first step (while the data were loaded or collected): no model to keep.
             removed = _remove_model_less_folder(self)
             gone = f", {removed} removed" if removed is not None else ""
