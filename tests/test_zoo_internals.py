@@ -7,6 +7,7 @@ import os
 import re
 import runpy
 import sys
+import zipfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -398,7 +399,9 @@ def test_the_config_env_kwargs_saved_in_args_yml_are_those_record_video_makes_it
     _, saved = manager.read_hyperparameters()
     manager.create_log_folder()
     manager._save_config(saved)
-    Path(manager.save_path, "Panda-v0.zip").write_bytes(b"")
+    with zipfile.ZipFile(Path(manager.save_path, "Panda-v0.zip"), "w") as model:  # a model's members: found, not loaded
+        model.writestr("data", "{}")
+        model.writestr("policy.pth", b"")
     made_with = {}
 
     def create_test_env(env_id, **kwargs):
@@ -587,3 +590,23 @@ def test_train_reads_key_value_items_with_store_dict_and_a_value_that_does_not_e
         "KEY:VALUE with a Python value: a number as it is (batch_size:64), a string in quotes inside the shell's "
         "(action_mode:\"'delta'\")"
     ]
+
+
+@checks("enjoy.py and record_video.py find the model they load with utils.get_model_path")
+def test_enjoy_finds_its_model_with_get_model_path_and_a_damaged_one_is_one_line(monkeypatch, tmp_path, capsys):
+    from rl_zoo3 import enjoy, record_video
+
+    assert enjoy.get_model_path is utils.get_model_path and record_video.get_model_path is utils.get_model_path
+    run = tmp_path / "logs" / "sac" / "Pendulum-v1_1"
+    run.mkdir(parents=True)
+    whole = tiny_sac(run / "best_model").read_bytes()
+    (run / "best_model.zip").write_bytes(whole[: len(whole) // 2])
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["enjoy", "--algo", "sac", "--env", "Pendulum-v1", "-f", "logs", "--exp-id", "1",
+                                      "--load-best", "-n", "1"])  # fmt: skip
+    with pytest.raises(SystemExit) as exit_:
+        enjoy.enjoy()
+    assert exit_.value.code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"python -m rl_zoo3.enjoy: error: {Path('logs/sac/Pendulum-v1_1/best_model.zip')} cannot be "
+                           "loaded: it ") and line.endswith("; no checkpoint beside it opens")  # fmt: skip

@@ -101,6 +101,8 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
     ZooInternal("option", "--env-kwargs", (None, "env_kwargs"), "None when not given: the config's go to args.yml then"),
     ZooInternal("behaviour", "train.py reads --hyperparams and --env-kwargs with utils.StoreDict, which evals each VALUE",
                 (), "a VALUE that does not evaluate is one line saying what to type (StoreDict.__call__ wrapped)"),
+    ZooInternal("behaviour", "enjoy.py and record_video.py find the model they load with utils.get_model_path", (),
+                "a damaged model is one line naming the last good checkpoint (get_model_path wrapped)"),
     ZooInternal("behaviour", "train.train parses sys.argv[1:]",
                 (), "the only record of which options were given: the Namespace holds values, the parser is local"),
     ZooInternal("behaviour", "train.train calls learn, then save_trained_model", (),
@@ -210,6 +212,25 @@ def _extend_utils(utils: ModuleType) -> None:
     utils.ALGOS.setdefault(ALGO, CQL)
     utils.ALGOS.setdefault("bc", BC)
     utils.ALGOS.setdefault("iql", IQL)
+    if not getattr(utils.get_model_path, "_sb3_cql_wrapped", False):  # enjoy.py and record_video.py import it after
+        utils.get_model_path = _checked_model_path(utils.get_model_path)
+
+
+def _checked_model_path(get_model_path: Any) -> Any:
+    """The zoo's ``get_model_path`` (the model that enjoy.py and record_video.py load), ending the command on one line
+    where the model cannot be loaded (a copy or a save cut short), naming the newest checkpoint beside it that opens."""
+
+    @functools.wraps(get_model_path)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        found = get_model_path(*args, **kwargs)
+        damaged = _damaged_model(Path(found[1]))
+        if damaged is not None:
+            print(f"python -m rl_zoo3.{Path(sys.argv[0]).stem}: error: {damaged}", file=sys.stderr)
+            raise SystemExit(2)
+        return found
+
+    wrapper._sb3_cql_wrapped = True  # type: ignore[attr-defined]
+    return wrapper
 
 
 def _extend_hyperparams_opt(hyperparams_opt: ModuleType) -> None:
