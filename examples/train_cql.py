@@ -30,7 +30,7 @@ def main() -> None:
     parser.add_argument("--log-dir", default="logs/cql")
     parser.add_argument("--tensorboard-log", default=None)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--cql-alpha", type=float, default=5.0)
+    parser.add_argument("--cql-alpha", type=float, default=10.0)
     parser.add_argument("--cql-target-action-gap", type=float, default=None, help="learn the Lagrange multiplier")
     parser.add_argument("--bc-steps", type=int, default=0, help="behaviour-cloning warm start (gradient steps)")
     args = parser.parse_args()

@@ -27,7 +27,7 @@ class BC(OfflineSAC):
     The model is a SAC model in every other respect (policy, ``predict``, ``save``/``load``, observation
     normalisation from the dataset), so anything that evaluates or loads a SAC or CQL model takes it; its critics
     stay untrained. ``BC("MlpPolicy", env, dataset="sb3cql/Panda-v0/pid-v0").learn(20_000)``. A ``batch_size``
-    below 1, or a replay buffer given as ``dataset`` that holds a NaN or an infinity, is a
+    below 1, or a replay buffer given as ``dataset`` that holds a NaN or an infinity or an action outside [-1, 1], is a
     :class:`~sb3_cql.common.SettingError`; ``save`` and ``save_replay_buffer`` leave a file whole or none.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).

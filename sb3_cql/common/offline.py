@@ -164,6 +164,23 @@ def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None
 
 
 class TrainingDivergedError(FloatingPointError, ValueError):
+#: How far a buffer's scaled action may lie outside [-1, 1] (float32 rounding of data scaled elsewhere).
+SCALED_ACTION_TOLERANCE = 1e-5
+
+
+def first_action_outside(buffer: ReplayBuffer) -> tuple[int, int, int, float] | None:
+    """The first action among the filled transitions of ``buffer`` outside [-1, 1], the scaled action space SB3's
+    buffers hold (``policy.scale_action``): ``(index, env, component, value)``; ``None`` if all lie inside (NaN
+    compares as inside: :func:`first_non_finite` finds it)."""
+    size = buffer.size()
+    filled = buffer.actions[:size].reshape(size, buffer.n_envs, -1)
+    bad = np.argwhere(np.abs(filled) > 1.0 + SCALED_ACTION_TOLERANCE)
+    if not len(bad):
+        return None
+    index, env, component = bad[0]
+    return int(index), int(env), int(component), float(filled[index, env, component])
+
+
     """A training loss became NaN or infinite. A ``ValueError`` too, so that RL-Zoo3's tuning prunes the trial
     (it prunes on ``ValueError``) instead of ending the whole study."""
 
@@ -213,9 +230,10 @@ class OfflineSAC(SAC):
     A setting training cannot use (``gamma`` or ``tau`` outside [0, 1], a learning rate that is not a finite number
     > 0, a negative ``ent_coef``, a NaN ``target_entropy``, a layer of 0 units, a negative step count, a ``batch_size``
     below 1, ...; also one given to :meth:`load`) is a :class:`SettingError` naming the keyword and its value, raised
-    when the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity; a keyword
-    it does not take is a :class:`KeywordError` naming the closest one. :meth:`save` and :meth:`save_replay_buffer`
-    leave a file whole or none. Ctrl-C during :meth:`learn` offline acts between gradient steps: the model is the one
+    when the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an
+    action outside [-1, 1] (SB3's buffers hold actions scaled by ``policy.scale_action``); a keyword it does not take
+    is a :class:`KeywordError` naming the closest one. :meth:`save` and :meth:`save_replay_buffer` leave a file whole
+    or none. Ctrl-C during :meth:`learn` offline acts between gradient steps: the model is the one
     after its last whole step.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
@@ -416,6 +434,12 @@ class OfflineSAC(SAC):
                 raise SettingError(f"dataset: the replay buffer's {field} hold {value} at {at}: every value must be "
                                    "finite")  # fmt: skip
             if dataset.obs_shape != get_obs_shape(self.observation_space):
+            outside = first_action_outside(dataset)
+            if outside is not None:  # SB3 stores actions scaled to the policy's [-1, 1]; a tanh policy never reaches them
+                index, env, component, value = outside
+                at = f"index {index}" + (f", env {env}" if dataset.n_envs > 1 else "")
+                raise SettingError(f"dataset: the replay buffer's actions hold {value:g} at {at} (action[{component}]), "
+                                   "outside [-1, 1]: store actions scaled as SB3 does (policy.scale_action)")  # fmt: skip
                 dataset = transposed_images(dataset, self.observation_space)
             chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
             self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma, chunks)

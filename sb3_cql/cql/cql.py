@@ -60,10 +60,10 @@ class CQL(OfflineSAC):
 
     Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
     learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere (``cql_alpha`` 10,
-    CORL's). A setting training
-    cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``, ``batch_size`` 0, ..., also given to
-    :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its value; so is a replay buffer given as
-    ``dataset`` that holds a NaN or an infinity. ``save`` and ``save_replay_buffer`` leave a file whole or none.
+    CORL's). A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``,
+    ``batch_size`` 0, ..., also given to :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its
+    value; so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an action outside [-1, 1]
+    (the scaled action space SB3's buffers hold). ``save`` and ``save_replay_buffer`` leave a file whole or none.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with CQL's
         actor and critic passes, :mod:`sb3_cql.cql.policies`).
