@@ -220,7 +220,7 @@ def test_non_finite_or_mistyped_physics_are_refused_where_the_task_is_made(capsy
             "--hyperparams learning_rate:'abc': learning_rate must be a number > 0 or a "
             "linear schedule 'lin_<initial value>'; e.g. learning_rate:0.0003 or",
         ),
-        ("cql", ["learning_rate:-0.001"], "learning_rate must be a number > 0, got -0.001"),
+        ("cql", ["learning_rate:-0.001"], "learning_rate must be a number >= 0, got -0.001"),
         (
             "cql",
             ["dataset:sb3cql/Panda-v0/pid-v0"],
@@ -231,7 +231,7 @@ def test_non_finite_or_mistyped_physics_are_refused_where_the_task_is_made(capsy
         ),
         ("cql", ["batch_size:abc"], "--hyperparams batch_size:abc: NameError: name 'abc' is not defined;"),
         ("cql", ["reward_scale:float('nan')"], "reward_scale must be a finite number, got nan"),
-        ("cql", ["actor_learning_rate:-1.0"], "actor_learning_rate must be a number > 0, got -1.0"),
+        ("cql", ["actor_learning_rate:-1.0"], "actor_learning_rate must be a number >= 0, got -1.0"),
     ],
 )
 def test_zoo_hyperparameters_it_cannot_use_are_one_line_and_leave_no_run_folder(algo, items, message, monkeypatch, capsys):

@@ -588,3 +588,26 @@ def test_a_fine_tuning_with_a_bad_setting_or_dataset_ends_on_one_line_and_leaves
                          "--hyperparams", setting)  # fmt: skip
     assert message in ended_on_one_line(result)
     assert not list((zoo.root / "refused-ft").rglob("PandaForce-v0_*"))
+
+
+def test_iql_with_best_of_n_trains_plays_and_evaluates_through_the_zoo_acting_by_ranking(zoo):
+    """``--algo iql`` with ``best_of_n`` from the command line: the model saves it, and enjoy and evaluate act with it."""
+    zoo.run("--algo", "iql", "--env", "Panda-v0", "-n", "30", "--eval-freq", "15", "--eval-episodes", "1", "-f", "iql",
+            "--seed", "0", *TINY, "best_of_n:4")  # fmt: skip
+    model = zoo.root / "iql" / "iql" / "Panda-v0_1" / "Panda-v0.zip"
+    assert zoo.python(f"from sb3_cql import IQL; m = IQL.load('{model}'); print(m.policy.best_of_n, m.gamma)") == "4 0.999"
+    zoo.run("--algo", "iql", "--env", "Panda-v0", "-f", "iql", "--exp-id", "1", "-n", "12", "--no-render",
+            module="rl_zoo3.enjoy")  # fmt: skip
+    assert "Panda-v0" in zoo.run(str(model), "--algo", "iql", "-n", "1", "--env", "Panda-v0", module="sb3_cql.evaluate")
+
+
+def test_the_iql_search_space_gives_iql_keywords():
+    from sb3_cql import IQL
+    from sb3_cql.zoo.search_space import sample_iql_params
+
+    raw = {"expectile": 0.9, "temperature": 10.0, "gamma": 0.999, "learning_rate": 3e-4, "batch_size": 256,
+           "net_arch": "medium", "reward": "data", "n_steps": 5, "best_of_n": 32}  # fmt: skip
+    params = sample_iql_params(optuna.trial.FixedTrial(raw), n_actions=9, n_envs=1, additional_args={})
+    assert params["policy_kwargs"] == {"net_arch": [256, 256]}
+    assert (params["reward_scale"], params["reward_bias"]) == (1.0, 0.0)
+    IQL("MlpPolicy", "Pendulum-v1", **{**params, "policy_kwargs": {"net_arch": [8]}})  # every key is IQL's

@@ -102,17 +102,18 @@ def check_finite(names_values: Iterable[tuple[str, Any]]) -> None:
 
 
 def check_rate(name: str, value: Any) -> None:
-    """:class:`SettingError` unless the learning rate ``name`` is a finite number > 0, or a schedule (a callable of the
-    progress remaining, as SB3's) whose first value is."""
+    """:class:`SettingError` unless the learning rate ``name`` is a finite number >= 0, or a schedule (a callable of the
+    progress remaining, as SB3's) whose first value is. 0 is SB3's frozen network, which the zoo's ``enjoy`` and
+    ``record_video`` load models with."""
     if callable(value) and not isinstance(value, numbers.Real):
         try:
             first = value(1.0)
         except Exception as error:
             raise SettingError(f"{name}: the schedule {value!r} fails at progress 1.0: {error}") from None
-        if not (isinstance(first, numbers.Real) and np.isfinite(first) and first > 0):
-            raise SettingError(f"{name} must be a finite number > 0, got a schedule starting at {first!r}")
+        if not (isinstance(first, numbers.Real) and np.isfinite(first) and first >= 0):
+            raise SettingError(f"{name} must be a number >= 0, got a schedule starting at {first!r}")
         return
-    check_non_negative([(name, value)], strictly=True)
+    check_non_negative([(name, value)])
 
 
 def check_net_arch(net_arch: Any) -> None:
@@ -163,7 +164,6 @@ def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None
     return None
 
 
-class TrainingDivergedError(FloatingPointError, ValueError):
 #: How far a buffer's scaled action may lie outside [-1, 1] (float32 rounding of data scaled elsewhere).
 SCALED_ACTION_TOLERANCE = 1e-5
 
@@ -181,6 +181,7 @@ def first_action_outside(buffer: ReplayBuffer) -> tuple[int, int, int, float] | 
     return int(index), int(env), int(component), float(filled[index, env, component])
 
 
+class TrainingDivergedError(FloatingPointError, ValueError):
     """A training loss became NaN or infinite. A ``ValueError`` too, so that RL-Zoo3's tuning prunes the trial
     (it prunes on ``ValueError``) instead of ending the whole study."""
 
@@ -433,13 +434,13 @@ class OfflineSAC(SAC):
                 at = f"index {index}" + (f", env {env}" if dataset.n_envs > 1 else "")
                 raise SettingError(f"dataset: the replay buffer's {field} hold {value} at {at}: every value must be "
                                    "finite")  # fmt: skip
-            if dataset.obs_shape != get_obs_shape(self.observation_space):
             outside = first_action_outside(dataset)
             if outside is not None:  # SB3 stores actions scaled to the policy's [-1, 1]; a tanh policy never reaches them
                 index, env, component, value = outside
                 at = f"index {index}" + (f", env {env}" if dataset.n_envs > 1 else "")
                 raise SettingError(f"dataset: the replay buffer's actions hold {value:g} at {at} (action[{component}]), "
                                    "outside [-1, 1]: store actions scaled as SB3 does (policy.scale_action)")  # fmt: skip
+            if dataset.obs_shape != get_obs_shape(self.observation_space):
                 dataset = transposed_images(dataset, self.observation_space)
             chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
             self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma, chunks)
