@@ -164,11 +164,14 @@ def test_the_anchor_divides_the_q_term_by_mean_abs_q_and_leaves_the_entropy_term
     ent_coef = th.tensor(0.3)
     mean_actions = th.tensor([[0.2], [-0.1], [0.4]], requires_grad=True)
     replay_data = model.replay_buffer.sample(3)
-    actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
-    loss = model.anchor_actor_loss(actor_loss, min_qf_pi, mean_actions, replay_data, logs={})
+    entropy_loss = (ent_coef * log_prob).mean()
     bc = F.mse_loss(th.tanh(mean_actions), replay_data.actions)
-    expected = (ent_coef * log_prob).mean() - min_qf_pi.mean() / 200.0 + 2.0 * bc
-    assert loss.item() == pytest.approx(expected.item(), rel=1e-6)
-    loss.backward()
-    assert log_prob.grad.flatten().tolist() == pytest.approx([0.1] * 3)  # ent_coef / batch: SAC's, not over mean |Q|
-    assert min_qf_pi.grad.flatten().tolist() == pytest.approx([-1 / 600.0] * 3)
+    expected = (entropy_loss - min_qf_pi.mean() / 200.0 + 2.0 * bc).item()
+    for given in (entropy_loss, None):  # without it, the hook recovers it from SAC's actor loss
+        log_prob.grad = min_qf_pi.grad = None
+        actor_loss = (ent_coef * log_prob).mean() - min_qf_pi.mean()
+        loss = model.anchor_actor_loss(actor_loss, min_qf_pi, mean_actions, replay_data, logs={}, entropy_loss=given)
+        assert loss.item() == pytest.approx(expected, rel=1e-6 if given is not None else 1e-4)
+        loss.backward(retain_graph=True)
+        assert log_prob.grad.flatten().tolist() == pytest.approx([0.1] * 3)  # ent_coef / batch: SAC's, not / mean |Q|
+        assert min_qf_pi.grad.flatten().tolist() == pytest.approx([-1 / 600.0] * 3)

@@ -557,8 +557,9 @@ class CQL(OfflineSAC):
             return self.warm_start_actor_loss(replay_data, ent_coef)
         q_values_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1)
         min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
-        actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
-        return self.anchor_actor_loss(actor_loss, min_qf_pi, policy[0], replay_data, logs)
+        entropy_loss = (ent_coef * log_prob).mean()
+        actor_loss = entropy_loss - min_qf_pi.mean()
+        return self.anchor_actor_loss(actor_loss, min_qf_pi, policy[0], replay_data, logs, entropy_loss=entropy_loss)
 
     def warm_start_actor_loss(self, replay_data: ReplayBufferSamples, ent_coef: th.Tensor) -> th.Tensor:
         """The behaviour-cloning warm start's actor loss: in SAC's, imitation in place of Q."""
@@ -583,20 +584,23 @@ class CQL(OfflineSAC):
         mean_actions: th.Tensor,
         replay_data: ReplayBufferSamples,
         logs: dict[str, list[float]],
+        entropy_loss: th.Tensor | None = None,
     ) -> th.Tensor:
         """With ``actor_bc_weight``, TD3+BC's anchor on SAC's ``actor_loss`` (``mean(ent_coef * log_prob - Q)``): the
         Q term divided by the batch's mean ``|Q|`` (detached: on a scale of 1 whatever the rewards), as TD3+BC
         normalises Q, the entropy term left as SAC weighs it (``ent_coef`` is tuned against the target entropy at that
         weight), plus ``actor_bc_weight`` times the imitation of the data by the actor's ``mean_actions``:
         ``mean(ent_coef * log_prob) - mean(Q) / mean(|Q|) + actor_bc_weight * bc``. ``actor_loss`` unchanged
-        without it."""
+        without it. ``entropy_loss`` is ``mean(ent_coef * log_prob)``; without it, it is taken as
+        ``actor_loss + mean(Q)`` (the same gradient, its value rounded at the scale of Q)."""
         if self.actor_bc_weight <= 0:
             return actor_loss
         bc_loss = behaviour_cloning_loss(mean_actions, replay_data.actions)
         _append(logs, "train/actor_bc_loss", bc_loss.item())
         q_term = min_qf_pi.mean()
-        entropy_term = actor_loss + q_term  # actor_loss is mean(ent_coef * log_prob) - q_term
-        return entropy_term - q_term / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
+        if entropy_loss is None:
+            entropy_loss = actor_loss + q_term  # actor_loss is mean(ent_coef * log_prob) - mean(Q)
+        return entropy_loss - q_term / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
 
     def in_warm_start(self) -> bool:
         """Whether the next gradient step is one of the first ``bc_steps`` of the model's training. Counted in gradient
