@@ -58,7 +58,8 @@ def random_buffer(env: gym.Env, size: int = 32) -> ReplayBuffer:
     rng = np.random.default_rng(0)
     for _ in range(size):
         observation = rng.normal(size=env.observation_space.shape).astype(np.float32)
-        buffer.add(observation, observation, env.action_space.sample(), np.array([0.0]), np.array([False]), [{}])
+        action = rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)  # scaled, as SB3 stores actions
+        buffer.add(observation, observation, action, np.array([0.0]), np.array([False]), [{}])
     return buffer
 
 
@@ -217,7 +218,7 @@ def test_non_finite_or_mistyped_physics_are_refused_where_the_task_is_made(capsy
         (
             "cql",
             ["learning_rate:'abc'"],
-            "--hyperparams learning_rate:'abc': learning_rate must be a number > 0 or a "
+            "--hyperparams learning_rate:'abc': learning_rate must be a number >= 0 or a "
             "linear schedule 'lin_<initial value>'; e.g. learning_rate:0.0003 or",
         ),
         ("cql", ["learning_rate:-0.001"], "learning_rate must be a number >= 0, got -0.001"),

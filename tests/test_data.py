@@ -113,7 +113,8 @@ def test_random_yaw_collection_records_its_yaws_and_is_reproducible():
     assert "SeedSequence(seed)" in parameters["yaw_seed"] and parameters["yaw_episode_seed"] == (
         "episode i: PDController.seed((5, i))"
     )
-    fixed = collect_dataset(dataclasses.replace(spec, policy="noisy-regrasp"), progress_bar=False)
+    fixed = collect_dataset(dataclasses.replace(spec, policy="noisy-regrasp"), "sb3cql/Panda-v0/yaw-fixed-v0",
+                            progress_bar=False)  # fmt: skip
     assert "yaw" not in json.loads(fixed.storage.metadata["controller"])
     # The same episodes (same resets, same noise generator) with another hand yaw: other actions.
     np.testing.assert_array_equal(one[0].observations[0], fixed[0].observations[0])
@@ -382,9 +383,9 @@ def test_non_finite_values_and_actions_outside_the_action_space_are_refused_nami
 
 
 def test_command_line_collects_and_describes(capsys):
-    data_cli(["collect", "--policy", "random", "--episodes", "1", "--seed", "3"])
-    assert "sb3cql/Panda-v0/random-v0: 1 episodes, 700 transitions" in capsys.readouterr().out
-    data_cli(["info", "sb3cql/Panda-v0/random-v0"])
+    data_cli(["collect", "--policy", "random", "--episodes", "1", "--seed", "3", "--dataset-id", "sb3cql/Panda-v0/rnd-v0"])
+    assert "sb3cql/Panda-v0/rnd-v0: 1 episodes, 700 transitions" in capsys.readouterr().out
+    data_cli(["info", "sb3cql/Panda-v0/rnd-v0"])
     assert '"success_rate": 0.0' in capsys.readouterr().out
 
 

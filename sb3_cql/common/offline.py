@@ -229,7 +229,7 @@ class OfflineSAC(SAC):
     loaded model predicts with a one-transition buffer, and refills it from its dataset id when it trains again.
 
     A setting training cannot use (``gamma`` or ``tau`` outside [0, 1], a learning rate that is not a finite number
-    > 0, a negative ``ent_coef``, a NaN ``target_entropy``, a layer of 0 units, a negative step count, a ``batch_size``
+    >= 0, a negative ``ent_coef``, a NaN ``target_entropy``, a layer of 0 units, a negative step count, a ``batch_size``
     below 1, ...; also one given to :meth:`load`) is a :class:`SettingError` naming the keyword and its value, raised
     when the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an
     action outside [-1, 1] (SB3's buffers hold actions scaled by ``policy.scale_action``); a keyword it does not take

@@ -403,7 +403,7 @@ def _check_hyperparameters(algo: type, hyperparams: dict[str, Any]) -> None:
             except ValueError:
                 valid = False
             if not valid:
-                zoo_parse_error("--hyperparams", f"{key}:{value!r}", f"{key} must be a number > 0 or a linear schedule "
+                zoo_parse_error("--hyperparams", f"{key}:{value!r}", f"{key} must be a number >= 0 or a linear schedule "
                                 f"'lin_<initial value>'", f"e.g. {key}:0.0003 or {key}:\"'lin_0.0003'\"")  # fmt: skip
 
 
