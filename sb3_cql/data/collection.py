@@ -98,8 +98,8 @@ class CollectionSpec:
         attempt, seeded with ``(seed, i)`` in episode ``i``), ``"random"`` (uniform actions), or the path of a saved
         SB3 model.
     :param n_episodes: number of episodes.
-    :param seed: episode ``i`` is reset with ``seed + i``.
-    :param noise: standard deviation (rad) of the noise on the executed arm joint targets; ``None`` means
+    :param seed: episode ``i`` is reset with ``seed + i`` (an integer >= 0).
+    :param noise: standard deviation (rad) of the noise on the executed arm joint targets, a finite number >= 0; ``None`` means
         0.03 for the noisy policies and 0 otherwise.
     :param env_kwargs: keywords for ``gymnasium.make`` (``action_mode``, physics).
     :param algo: the SB3 algorithm of a model policy, a key of RL-Zoo3's ``ALGOS`` (``"sac"``, ``"cql"``...).
@@ -641,7 +641,9 @@ def collect_dataset(
     (:mod:`sb3_cql.data.partial` has the layout). A kill at any instant leaves no dataset under its id, or the
     complete one, and running the same collection again resumes it to the dataset an uninterrupted run gives. A
     partial collection of another spec is kept, and this one refused with a :class:`DatasetError` saying what it
-    holds (``overwrite`` replaces it); so is a second collection of the id while one runs. Actions are the executed
+    holds (``overwrite`` replaces it), unless it kept no episode; so is a second collection of the id while one runs.
+    A standard id (:func:`standard_collection`) takes its standard collection only, or its first episodes: another
+    policy, seed, noise or physics is a :class:`DatasetError` naming an id of its own. Actions are the executed
     ones; with noise, the policy's clean actions are in the episodes' ``infos["clean_action"]``.
 
     It prints (on stderr) one line before it starts: the episodes, the workers and about how long and how much disk

@@ -158,7 +158,8 @@ def fill_replay_buffer(
         ``NStepReplayBuffer``).
     :param buffer_observation_space: the observation space of a buffer made here where it is not the env's: SB3's
         ``VecTransposeImage`` makes channel-last images channel-first for the policy, and the data's images are
-        transposed as it transposes them. Dict observations load into a ``DictReplayBuffer``.
+        transposed as it transposes them; data whose images are already channel-first (the buffer's shapes) load as
+        they are. Dict observations load into a ``DictReplayBuffer``.
     """
     from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
     from stable_baselines3.common.vec_env import VecTransposeImage
