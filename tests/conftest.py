@@ -1,3 +1,4 @@
+import signal
 from collections.abc import Iterator
 
 import gymnasium as gym
@@ -5,6 +6,16 @@ import postgres
 import pytest
 
 import envs
+
+
+@pytest.fixture(autouse=True, scope="session")
+def children_take_ctrl_c() -> None:
+    """The processes the tests start get Ctrl-C's default disposition, unblocked, however pytest was started: a shell
+    script's ``python -m pytest &`` (no job control) starts it with SIGINT ignored, which children would inherit
+    through ``exec``, and then the tests that send them SIGINT would wait on processes that never see it. A Python
+    handler in pytest itself is reset to the default in every child."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 @pytest.fixture(params=list(envs.ENV_IDS))
