@@ -128,11 +128,13 @@ def test_a_zoo_without_a_wrapped_method_or_parameter_is_left_alone_with_a_warnin
 def test_the_module_attributes_hold_our_algorithms_and_search_space():
     from sb3_cql.bc import BC
     from sb3_cql.cql import CQL
-    from sb3_cql.zoo.search_space import convert_cql_params, sample_cql_params
+    from sb3_cql.iql import IQL
+    from sb3_cql.zoo.search_space import convert_cql_params, convert_iql_params, sample_cql_params, sample_iql_params
 
     modules = {"rl_zoo3.utils": utils, "rl_zoo3.hyperparams_opt": hyperparams_opt}
-    ours = {"ALGOS": {"cql": CQL, "bc": BC}, "HYPERPARAMS_SAMPLER": {"cql": sample_cql_params},
-            "HYPERPARAMS_CONVERTER": {"cql": convert_cql_params}}  # fmt: skip
+    ours = {"ALGOS": {"cql": CQL, "bc": BC, "iql": IQL},
+            "HYPERPARAMS_SAMPLER": {"cql": sample_cql_params, "iql": sample_iql_params},
+            "HYPERPARAMS_CONVERTER": {"cql": convert_cql_params, "iql": convert_iql_params}}  # fmt: skip
     entries = [internal for internal in of_kind("attribute") if internal.name.startswith("rl_zoo3.")]
     assert {internal.name.rsplit(".", 1)[-1] for internal in entries} == set(ours)
     for internal in entries:
