@@ -155,23 +155,23 @@ def test_the_halved_td_loss_at_weight_a_trains_as_the_full_one_at_2a():
     assert equivalent < 1e-2 * different
 
 
-def test_the_anchor_divides_the_q_term_by_mean_abs_q_and_leaves_the_entropy_term():
-    """``actor_bc_weight``: ``mean(ent_coef * log_prob) - mean(Q) / mean(|Q|) + weight * bc``, as TD3+BC normalises Q
-    alone: the gradient through the entropy term is SAC's whatever the scale of Q."""
+def test_the_anchor_divides_sacs_whole_actor_loss_by_mean_abs_q():
+    """``actor_bc_weight``: ``mean(ent_coef * log_prob - Q) / mean(|Q|) + weight * bc``: the entropy term is divided
+    with the Q term (the documentation says why), and the imitation is added at its weight."""
     model = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(200), actor_bc_weight=2.0, policy_kwargs=TINY, seed=0)
     log_prob = th.tensor([[-1.0], [0.5], [2.0]], requires_grad=True)
     min_qf_pi = th.tensor([[-300.0], [-200.0], [100.0]], requires_grad=True)
     ent_coef = th.tensor(0.3)
     mean_actions = th.tensor([[0.2], [-0.1], [0.4]], requires_grad=True)
     replay_data = model.replay_buffer.sample(3)
-    entropy_loss = (ent_coef * log_prob).mean()
+    actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+    logs = {}
+    loss = model.anchor_actor_loss(actor_loss, min_qf_pi, mean_actions, replay_data, logs=logs)
     bc = F.mse_loss(th.tanh(mean_actions), replay_data.actions)
-    expected = (entropy_loss - min_qf_pi.mean() / 200.0 + 2.0 * bc).item()
-    for given in (entropy_loss, None):  # without it, the hook recovers it from SAC's actor loss
-        log_prob.grad = min_qf_pi.grad = None
-        actor_loss = (ent_coef * log_prob).mean() - min_qf_pi.mean()
-        loss = model.anchor_actor_loss(actor_loss, min_qf_pi, mean_actions, replay_data, logs={}, entropy_loss=given)
-        assert loss.item() == pytest.approx(expected, rel=1e-6 if given is not None else 1e-4)
-        loss.backward(retain_graph=True)
-        assert log_prob.grad.flatten().tolist() == pytest.approx([0.1] * 3)  # ent_coef / batch: SAC's, not / mean |Q|
-        assert min_qf_pi.grad.flatten().tolist() == pytest.approx([-1 / 600.0] * 3)
+    assert loss.item() == pytest.approx((actor_loss / 200.0 + 2.0 * bc).item(), rel=1e-6)
+    assert logs["train/actor_bc_loss"] == [pytest.approx(bc.item())]
+    loss.backward()
+    assert log_prob.grad.flatten().tolist() == pytest.approx([0.1 / 200.0] * 3)  # ent_coef / batch / mean |Q|
+    assert min_qf_pi.grad.flatten().tolist() == pytest.approx([-1 / 600.0] * 3)
+    model.actor_bc_weight = 0.0
+    assert model.anchor_actor_loss(actor_loss, min_qf_pi, mean_actions, replay_data, logs={}) is actor_loss

@@ -106,14 +106,13 @@ class CQL(OfflineSAC):
     :param bc_learning_rate: the actor's learning rate at the start of the warm start, decaying linearly over
         ``bc_steps`` to ``actor_learning_rate`` (imitation needs a larger rate than following Q, and a clone settles
         only as its rate decays); ``None`` for ``actor_learning_rate`` throughout.
-    :param actor_bc_weight: after the warm start, keep imitating in the actor loss: SAC's actor loss with its Q term
-        divided by the batch's mean ``|Q|`` (detached; the entropy term as SAC weighs it) plus ``actor_bc_weight``
+    :param actor_bc_weight: after the warm start, keep imitating in the actor loss: SAC's actor loss (its entropy
+        term too, :meth:`anchor_actor_loss`) divided by the batch's mean ``|Q|`` (detached) plus ``actor_bc_weight``
         times the warm start's behaviour-cloning loss, as in TD3+BC (Fujimoto & Gu 2021,
         https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight`` (its default 2.5 is 0.4 here).
         ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed (the documentation's *What we
-        learned* page, with the entropy term then divided by mean ``|Q|`` too): without it, following Q broke a
-        working clone within 1,000 steps; with a weight of 4 the clone held through 21,000 Q steps, neither better nor
-        worse than the clone on the three tasks; with 1 it slipped.
+        learned* page): without it, following Q broke a working clone within 1,000 steps; with a weight of 4 the clone
+        held through 21,000 Q steps, neither better nor worse than the clone on the three tasks; with 1 it slipped.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
         rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
         that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
@@ -557,9 +556,8 @@ class CQL(OfflineSAC):
             return self.warm_start_actor_loss(replay_data, ent_coef)
         q_values_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1)
         min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
-        entropy_loss = (ent_coef * log_prob).mean()
-        actor_loss = entropy_loss - min_qf_pi.mean()
-        return self.anchor_actor_loss(actor_loss, min_qf_pi, policy[0], replay_data, logs, entropy_loss=entropy_loss)
+        actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+        return self.anchor_actor_loss(actor_loss, min_qf_pi, policy[0], replay_data, logs)
 
     def warm_start_actor_loss(self, replay_data: ReplayBufferSamples, ent_coef: th.Tensor) -> th.Tensor:
         """The behaviour-cloning warm start's actor loss: in SAC's, imitation in place of Q."""
@@ -584,23 +582,20 @@ class CQL(OfflineSAC):
         mean_actions: th.Tensor,
         replay_data: ReplayBufferSamples,
         logs: dict[str, list[float]],
-        entropy_loss: th.Tensor | None = None,
     ) -> th.Tensor:
-        """With ``actor_bc_weight``, TD3+BC's anchor on SAC's ``actor_loss`` (``mean(ent_coef * log_prob - Q)``): the
-        Q term divided by the batch's mean ``|Q|`` (detached: on a scale of 1 whatever the rewards), as TD3+BC
-        normalises Q, the entropy term left as SAC weighs it (``ent_coef`` is tuned against the target entropy at that
-        weight), plus ``actor_bc_weight`` times the imitation of the data by the actor's ``mean_actions``:
-        ``mean(ent_coef * log_prob) - mean(Q) / mean(|Q|) + actor_bc_weight * bc``. ``actor_loss`` unchanged
-        without it. ``entropy_loss`` is ``mean(ent_coef * log_prob)``; without it, it is taken as
-        ``actor_loss + mean(Q)`` (the same gradient, its value rounded at the scale of Q)."""
+        """With ``actor_bc_weight``, TD3+BC's anchor on SAC's whole ``actor_loss`` (``mean(ent_coef * log_prob - Q)``):
+        divided by the batch's mean ``|Q|`` (detached: on a scale of 1 whatever the rewards), plus ``actor_bc_weight``
+        times the imitation of the data by the actor's ``mean_actions``; ``actor_loss`` unchanged without it.
+
+        The entropy term is divided too, unlike a Q-only normalisation (TD3+BC's actor has no entropy term): with
+        ``|Q|`` in the hundreds it then barely pulls, and the clone's spread and saturated gripper commands stay as the
+        warm start left them. Dividing Q alone, the shipped Panda configuration lost the clone within 1,000 steps of
+        the warm start's end (the documentation's *What we learned*, *The anchor must scale the entropy term too*)."""
         if self.actor_bc_weight <= 0:
             return actor_loss
         bc_loss = behaviour_cloning_loss(mean_actions, replay_data.actions)
         _append(logs, "train/actor_bc_loss", bc_loss.item())
-        q_term = min_qf_pi.mean()
-        if entropy_loss is None:
-            entropy_loss = actor_loss + q_term  # actor_loss is mean(ent_coef * log_prob) - mean(Q)
-        return entropy_loss - q_term / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
+        return actor_loss / min_qf_pi.abs().mean().detach() + self.actor_bc_weight * bc_loss
 
     def in_warm_start(self) -> bool:
         """Whether the next gradient step is one of the first ``bc_steps`` of the model's training. Counted in gradient
