@@ -9,8 +9,9 @@ The data, made here from a seeded script, are the same arrays for both libraries
   PD hold at the top, N(0, 0.5) torque noise, and at each step, with a probability drawn per episode from U(0.4, 1),
   a uniform random torque instead: a medium policy. Scored by the mean return.
 - ``mountaincar``: MountainCarContinuous-v0, 100 episodes (999-step limit) of a controller that pushes along the car's
-  velocity with a strength drawn per episode from U(0, 0.2), plus N(0, 1) noise, clipped to [-1, 1]: about half of
-  its episodes reach the flag. Scored by the success rate (the episode terminated at the flag).
+  velocity with a strength drawn per episode from U(0, 0.2), plus N(0, 1) noise, clipped to [-1, 1]: some of its
+  episodes reach the flag, most of the weak ones do not. Scored by the success rate (the episode terminated at the
+  flag). The script prints the data's own score first.
 
 Ours train from an SB3 ``ReplayBuffer`` (``dataset=``, actions scaled to [-1, 1], truncations as timeouts) with every
 constructor keyword at its default; d3rlpy's (``CQLConfig()``, ``IQLConfig()``, ``BCConfig()``) from an
