@@ -36,7 +36,8 @@ from sb3_cql.common import allocator
 
 OBS_DIM, ACTION_DIM, BATCH, HIDDEN, N_ACTIONS, N_DATA = 29, 9, 352, [256, 256, 256], 10, 20_000
 
-D3RLPY_SCRIPT = """
+#: The start of a d3rlpy benchmark script: torch's threads, the random data as a d3rlpy dataset, the networks' encoder.
+D3RLPY_DATA = """
 import sys, time, numpy as np, torch, d3rlpy
 torch.set_num_threads({threads})
 rng = np.random.default_rng(0)
@@ -44,6 +45,11 @@ terminals = np.zeros({n}); terminals[::200] = 1
 dataset = d3rlpy.dataset.MDPDataset(rng.standard_normal(({n}, {obs})).astype(np.float32),
     rng.uniform(-1, 1, ({n}, {act})).astype(np.float32), rng.standard_normal({n}).astype(np.float32), terminals)
 encoder = d3rlpy.models.VectorEncoderFactory({hidden})
+"""
+
+D3RLPY_SCRIPT = (
+    D3RLPY_DATA
+    + """
 cql = d3rlpy.algos.CQLConfig(batch_size={batch}, n_action_samples={n_actions}, actor_encoder_factory=encoder,
     critic_encoder_factory=encoder).create(device="cpu:0")
 kwargs = dict(show_progress=False, logger_adapter=d3rlpy.logging.NoopAdapterFactory(), save_interval=10**9)
@@ -52,6 +58,7 @@ start = time.perf_counter()
 cql.fit(dataset, n_steps={steps}, n_steps_per_epoch={steps}, **kwargs)
 print({steps} / (time.perf_counter() - start))
 """
+)
 
 
 def random_buffer() -> tuple[ReplayBuffer, spaces.Box, spaces.Box]:

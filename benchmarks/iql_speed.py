@@ -21,20 +21,15 @@ import sys
 import time
 
 import numpy as np
-from cql_speed import ACTION_DIM, HIDDEN, N_DATA, OBS_DIM, setup
+from cql_speed import ACTION_DIM, D3RLPY_DATA, HIDDEN, N_DATA, OBS_DIM, setup
 
 from sb3_cql import IQL
 
 BATCH = 256
 
-D3RLPY_SCRIPT = """
-import sys, time, numpy as np, torch, d3rlpy
-torch.set_num_threads({threads})
-rng = np.random.default_rng(0)
-terminals = np.zeros({n}); terminals[::200] = 1
-dataset = d3rlpy.dataset.MDPDataset(rng.standard_normal(({n}, {obs})).astype(np.float32),
-    rng.uniform(-1, 1, ({n}, {act})).astype(np.float32), rng.standard_normal({n}).astype(np.float32), terminals)
-encoder = d3rlpy.models.VectorEncoderFactory({hidden})
+D3RLPY_SCRIPT = (
+    D3RLPY_DATA
+    + """
 iql = d3rlpy.algos.IQLConfig(batch_size={batch}, gamma=0.999, expectile=0.9, weight_temp=10.0,
     actor_encoder_factory=encoder, critic_encoder_factory=encoder, value_encoder_factory=encoder).create(device="cpu:0")
 kwargs = dict(show_progress=False, logger_adapter=d3rlpy.logging.NoopAdapterFactory(), save_interval=10**9)
@@ -43,6 +38,7 @@ start = time.perf_counter()
 iql.fit(dataset, n_steps={steps}, n_steps_per_epoch={steps}, **kwargs)
 print({steps} / (time.perf_counter() - start))
 """
+)
 
 
 def make_iql(env, buffer, best_of_n: int = 1) -> IQL:

@@ -16,6 +16,7 @@ from torch.nn import functional as F
 from sb3_cql.common.offline import (
     OfflineSAC,
     SettingError,
+    check_finite,
     check_non_negative,
     finite_loss_value,
     shaped_rewards,
@@ -203,10 +204,7 @@ class IQL(OfflineSAC):
             raise SettingError(f"expectile must be in [0.5, 1), got {expectile!r}")
         check_non_negative([("temperature", self.temperature)])
         check_non_negative([("max_weight", self.max_weight)], strictly=True)
-        for name in ("reward_scale", "reward_bias"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)):
-                raise SettingError(f"{name} must be a finite number, got {value!r}")
+        check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
         if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
             raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
         if not issubclass(self.policy_class, IQLPolicy):
