@@ -1,4 +1,4 @@
-"""Our CQL and BC beside d3rlpy's CQL, IQL and BC, each at its own defaults, on two small tasks of hand-made data.
+"""Our CQL, IQL and BC beside d3rlpy's CQL, IQL and BC, each at its own defaults, on two small tasks of hand-made data.
 
     python benchmarks/d3rlpy_check.py --d3rlpy-python /path/to/venv/bin/python [--tasks pendulum mountaincar]
         [--seeds 0 1 2] [--steps 10000] [--episodes N] [--eval-episodes 10] [--threads 1] [--output FILE.jsonl]
@@ -38,7 +38,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_cql import BC, CQL
+from sb3_cql import BC, CQL, IQL
 
 TASKS = {"pendulum": "Pendulum-v1", "mountaincar": "MountainCarContinuous-v0"}
 EVAL_SEED = 10_000
@@ -129,7 +129,7 @@ def replay_buffer(data: dict[str, np.ndarray], env: gym.Env) -> ReplayBuffer:
     return buffer
 
 
-def evaluate(model: CQL | BC, env_id: str, n_episodes: int) -> tuple[list[float], list[bool]]:
+def evaluate(model: CQL | IQL | BC, env_id: str, n_episodes: int) -> tuple[list[float], list[bool]]:
     env, returns, successes = gym.make(env_id), [], []
     for episode in range(n_episodes):
         observation, _ = env.reset(seed=EVAL_SEED + episode)
@@ -145,7 +145,7 @@ def evaluate(model: CQL | BC, env_id: str, n_episodes: int) -> tuple[list[float]
 
 def run_ours(algorithm: str, data: dict[str, np.ndarray], env_id: str, seed: int, args: argparse.Namespace) -> dict:
     env = gym.make(env_id)
-    model = {"cql": CQL, "bc": BC}[algorithm]("MlpPolicy", env, dataset=replay_buffer(data, env), seed=seed)
+    model = {"cql": CQL, "iql": IQL, "bc": BC}[algorithm]("MlpPolicy", env, dataset=replay_buffer(data, env), seed=seed)
     start = time.perf_counter()
     model.learn(args.steps)
     seconds = time.perf_counter() - start
@@ -178,6 +178,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     sys.stdout.reconfigure(line_buffering=True)
     th.set_num_threads(args.threads)
     records = []
+    if args.output and Path(args.output).exists():  # resume: runs already in the file are not run again
+        records = [json.loads(line) for line in Path(args.output).read_text().splitlines() if line.strip()]
+    done = {(r["task"], r["library"], r["algorithm"], r["seed"], r["steps"]) for r in records}
     with tempfile.TemporaryDirectory() as folder:
         for task in args.tasks:
             data = make_data(task, args.episodes)
@@ -185,11 +188,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
             print(f"{task}: data {data_score:.3f} ({len(data['rewards'])} transitions)", flush=True)
             data_path = Path(folder) / f"{task}.npz"
             np.savez(data_path, env_id=TASKS[task], **{k: v for k, v in data.items() if not k.startswith("episode_")})
-            runs = [("sb3-cql", "cql"), ("sb3-cql", "bc")]
+            runs = [("sb3-cql", "cql"), ("sb3-cql", "iql"), ("sb3-cql", "bc")]
             if args.d3rlpy_python:
                 runs += [("d3rlpy", "cql"), ("d3rlpy", "iql"), ("d3rlpy", "bc")]
             for library, algorithm in runs:
                 for seed in args.seeds:
+                    if (task, library, algorithm, seed, args.steps) in done:
+                        continue
                     if library == "sb3-cql":
                         result = run_ours(algorithm, data, TASKS[task], seed, args)
                     else:
@@ -201,11 +206,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
                     if args.output:
                         with open(args.output, "a") as file:
                             file.write(json.dumps(record) + "\n")
-    print("\n| task | library | algorithm | mean over seeds | range |\n|---|---|---|---|---|")
+    print("\n| task | library | algorithm | mean over seeds | range | gradient steps/s |\n|---|---|---|---|---|---|")
     for task in args.tasks:
         for library, algorithm in sorted({(r["library"], r["algorithm"]) for r in records if r["task"] == task}):
             scores = [r["score"] for r in records if (r["task"], r["library"], r["algorithm"]) == (task, library, algorithm)]
-            print(f"| {task} | {library} | {algorithm} | {np.mean(scores):.3f} | {min(scores):.3f} .. {max(scores):.3f} |")
+            speed = np.mean([r["steps"] / r["seconds"] for r in records
+                             if (r["task"], r["library"], r["algorithm"]) == (task, library, algorithm)])
+            print(f"| {task} | {library} | {algorithm} | {np.mean(scores):.3f} | {min(scores):.3f} .. {max(scores):.3f} "
+                  f"| {speed:.0f} |")
     return records
 
 
