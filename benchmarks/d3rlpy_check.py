@@ -209,11 +209,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     print("\n| task | library | algorithm | mean over seeds | range | gradient steps/s |\n|---|---|---|---|---|---|")
     for task in args.tasks:
         for library, algorithm in sorted({(r["library"], r["algorithm"]) for r in records if r["task"] == task}):
-            scores = [r["score"] for r in records if (r["task"], r["library"], r["algorithm"]) == (task, library, algorithm)]
-            speed = np.mean([r["steps"] / r["seconds"] for r in records
-                             if (r["task"], r["library"], r["algorithm"]) == (task, library, algorithm)])
-            print(f"| {task} | {library} | {algorithm} | {np.mean(scores):.3f} | {min(scores):.3f} .. {max(scores):.3f} "
-                  f"| {speed:.0f} |")
+            mine = [r for r in records if (r["task"], r["library"], r["algorithm"]) == (task, library, algorithm)]
+            scores, speed = [r["score"] for r in mine], np.mean([r["steps"] / r["seconds"] for r in mine])
+            spread = f"{min(scores):.3f} .. {max(scores):.3f}"
+            print(f"| {task} | {library} | {algorithm} | {np.mean(scores):.3f} | {spread} | {speed:.0f} |")
     return records
 
 
