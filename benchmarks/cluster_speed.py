@@ -58,7 +58,7 @@ def main() -> None:
                   "episodes")  # fmt: skip
 
             timed([*data[:-1], "4", "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0"], env, root)
-            protocol = [sys.executable, "-m", "sb3_cql.benchmark", "--algos", "bc", "--seeds", "1", "--n-timesteps",
+            protocol = [sys.executable, "-m", "sb3_cql.protocol", "--algos", "bc", "--seeds", "1", "--n-timesteps",
                         str(args.steps), "--eval-freq", str(args.steps), "--eval-episodes", "1", "--episodes", "2",
                         "--save-freq", str(args.steps), "--no-filmstrips",
                         "--zoo-args", "--hyperparams batch_size:64 policy_kwargs:dict(net_arch=[32,32])"]  # fmt: skip

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sb3_cql.benchmark.plots import alignment_histograms
+from sb3_cql.protocol.plots import alignment_histograms
 
 
 def read_rows(paths: list[Path], task: str) -> dict[str, list[dict[str, Any]]]:

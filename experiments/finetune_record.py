@@ -33,8 +33,8 @@ from _cli import positive_int  # noqa: E402
 from stable_baselines3.common.save_util import load_from_pkl  # noqa: E402
 
 from envs.pd_controller import closing_angles  # noqa: E402
-from sb3_cql.benchmark.plots import mean_ci95  # noqa: E402
 from sb3_cql.common import MixedReplayBuffer  # noqa: E402
+from sb3_cql.protocol.plots import mean_ci95  # noqa: E402
 
 #: A closing at this angle or more (degrees between the closing direction and a lying cylinder's axis) is within 20
 #: degrees of across the axis.

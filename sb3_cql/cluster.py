@@ -1,5 +1,5 @@
 """Running the package's independent units of work (collection chunks, the protocol's trainings and evaluations) on a
-Ray cluster: ``--ray ADDRESS`` of ``python -m sb3_cql.data collect`` and ``python -m sb3_cql.benchmark``.
+Ray cluster: ``--ray ADDRESS`` of ``python -m sb3_cql.data collect`` and ``python -m sb3_cql.protocol``.
 
 Ray is an optional extra (``pip install -e ".[ray]"``); every node of the cluster needs this package installed, as
 the machine that starts the command has it. See the documentation's *Running on a cluster* page.

@@ -23,7 +23,7 @@ TERMINATED_STATUS = 128 + signal.SIGTERM
 
 
 #: The package's command lines (``python -m MODULE``), each of which calls :func:`started` after its imports.
-COMMANDS = ("sb3_cql.data", "sb3_cql.evaluate", "sb3_cql.benchmark")
+COMMANDS = ("sb3_cql.data", "sb3_cql.evaluate", "sb3_cql.protocol", "sb3_cql.benchmark")
 
 
 def quiet_command_startup() -> None:

@@ -25,13 +25,13 @@ from stable_baselines3.common.envs import FakeImageEnv
 
 from envs.config import ConfigError
 from sb3_cql import BC, CQL
-from sb3_cql.benchmark.__main__ import main as benchmark_cli
 from sb3_cql.common.offline import SettingError
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset
 from sb3_cql.data.__main__ import main as data_cli
 from sb3_cql.data.ids import dataset_path, partial_path
 from sb3_cql.data.partial import DatasetFiles
 from sb3_cql.evaluate import main as evaluate_cli
+from sb3_cql.protocol.__main__ import main as benchmark_cli
 
 TINY = {"net_arch": [8]}
 #: The zoo's CQL run on Panda-v0 in delta actions with tiny networks, in the test's folder.
@@ -351,7 +351,7 @@ def test_the_protocol_refuses_bad_counts_and_folders_before_writing_and_runs_the
         (["--zoo-args", "--hyperparams 'batch_size:64"], '--zoo-args "--hyperparams \'batch_size:64": No closing quotation'),
     ):
         code, line = one_line(benchmark_cli, [*protocol, *args], capsys)
-        assert code == 2 and line.startswith(f"python -m sb3_cql.benchmark: error: {message}"), line
+        assert code == 2 and line.startswith(f"python -m sb3_cql.protocol: error: {message}"), line
         assert not results.exists()
     a_file = tmp_path / "a_file"
     a_file.write_text("")

@@ -84,7 +84,7 @@ TIMES = {"train_wall_time_s", "eval_wall_time_s"}
 
 def benchmark(args, root, **kwargs):
     env = {**os.environ, "MINARI_DATASETS_PATH": str(root / "datasets"), "MPLBACKEND": "Agg"}
-    return subprocess.Popen([sys.executable, "-m", "sb3_cql.benchmark", *PROTOCOL, *args], cwd=root, env=env,
+    return subprocess.Popen([sys.executable, "-m", "sb3_cql.protocol", *PROTOCOL, *args], cwd=root, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)  # fmt: skip
 
 

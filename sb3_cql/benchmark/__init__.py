@@ -1,11 +1,18 @@
-"""The thesis's evaluation protocol (chapters 4.3 and 5): ``python -m sb3_cql.benchmark``.
+"""Former name of :mod:`sb3_cql.protocol`, the thesis's evaluation protocol; importing it warns and forwards.
 
-:mod:`~sb3_cql.benchmark.runner` trains and evaluates (resumable units of work), :mod:`~sb3_cql.benchmark.runs`
-reads a zoo training run back from disk, :mod:`~sb3_cql.benchmark.report` makes the results files and the table,
-:mod:`~sb3_cql.benchmark.plots` the figures, :mod:`~sb3_cql.benchmark.records` holds the results folder's layout.
+``python -m sb3_cql.benchmark`` still runs ``python -m sb3_cql.protocol`` (with a :class:`DeprecationWarning`), and
+``sb3_cql.benchmark.records``, ``.runner``, ``.runs``, ``.report`` and ``.plots`` are the protocol's modules
+themselves. Speed scripts are in the repository's ``benchmarks/`` folder.
 """
 
-from sb3_cql.benchmark.records import ResultsFolder
-from sb3_cql.benchmark.runner import BenchmarkError, Protocol, Settings, UnitsFailed, run_protocol
+import warnings
 
-__all__ = ["BenchmarkError", "Protocol", "ResultsFolder", "Settings", "UnitsFailed", "run_protocol"]
+warnings.warn(
+    "sb3_cql.benchmark is now sb3_cql.protocol (python -m sb3_cql.protocol); the old name will be removed",
+    DeprecationWarning,
+    stacklevel=2,
+)
+
+from sb3_cql.protocol import *  # noqa: E402, F403  (the old name's public API, unchanged)
+from sb3_cql.protocol import __all__  # noqa: E402, F401
+from sb3_cql.protocol.runner import ProtocolError as BenchmarkError  # noqa: E402, F401  (the error's former name)

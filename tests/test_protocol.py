@@ -1,4 +1,4 @@
-"""The protocol command, ``python -m sb3_cql.benchmark``, end to end with the real zoo on a 4-episode dataset."""
+"""The protocol command, ``python -m sb3_cql.protocol``, end to end with the real zoo on a 4-episode dataset."""
 
 import contextlib
 import json
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from startup import interrupt_while_starting
 
-from sb3_cql.benchmark.runs import Run, model_timesteps
+from sb3_cql.protocol.runs import Run, model_timesteps
 
 TASKS = ["Panda-v0", "PandaForce-v0", "PandaPerturbed-v0"]
 # Tiny networks and batches, short runs, one episode per evaluation: the point is the plumbing.
@@ -30,10 +30,10 @@ class Bench:
         self.root = root
         self.env = {**os.environ, "MINARI_DATASETS_PATH": str(root / "datasets"), "MPLBACKEND": "Agg"}
 
-    def command(self, *args: str, module: str = "sb3_cql.benchmark") -> list[str]:
+    def command(self, *args: str, module: str = "sb3_cql.protocol") -> list[str]:
         return [sys.executable, "-m", module, *args]
 
-    def run(self, *args: str, module: str = "sb3_cql.benchmark", check: bool = True) -> subprocess.CompletedProcess:
+    def run(self, *args: str, module: str = "sb3_cql.protocol", check: bool = True) -> subprocess.CompletedProcess:
         result = subprocess.run(self.command(*args, module=module), cwd=self.root, env=self.env, capture_output=True,
                                 text=True, timeout=900)  # fmt: skip
         if check:
@@ -149,7 +149,7 @@ def test_clear_errors(bench, quick):
         result = bench.run(*args, check=False)
         assert result.returncode == 2 and "Traceback" not in result.stderr
         (line,) = result.stderr.strip().splitlines()
-        assert line.startswith("python -m sb3_cql.benchmark: error: ")
+        assert line.startswith("python -m sb3_cql.protocol: error: ")
         return line
 
     assert "unknown algo 'nothing'" in one_line_error("--algos", "cql", "nothing", "--results-dir", "errors")
@@ -166,8 +166,8 @@ def test_clear_errors(bench, quick):
 
 
 def test_dataset_option_sets_the_offline_algorithms_dataset_only(tmp_path):
-    from sb3_cql.benchmark.records import ResultsFolder, write_json
-    from sb3_cql.benchmark.runner import BenchmarkError, Settings
+    from sb3_cql.protocol.records import ResultsFolder, write_json
+    from sb3_cql.protocol.runner import ProtocolError, Settings
 
     thesis = "sb3cql/Panda-v0/noisy-regrasp-delta-v0"
     settings = Settings(zoo_args=["--hyperparams", "batch_size:64", "--verbose", "0"], dataset=thesis)
@@ -181,7 +181,7 @@ def test_dataset_option_sets_the_offline_algorithms_dataset_only(tmp_path):
     write_json(results.protocol, {"settings": {"n_timesteps": None, "eval_freq": None, "eval_episodes": None,
                                                "episodes": 100, "zoo_args": []}, "train_env": "Panda-v0"})  # fmt: skip
     Settings().check_folder(results)
-    with pytest.raises(BenchmarkError, match="other settings"):
+    with pytest.raises(ProtocolError, match="other settings"):
         Settings(dataset=thesis).check_folder(results)
 
 
@@ -272,7 +272,7 @@ def test_an_algorithms_confidence_interval_depends_on_its_own_scores_alone():
     """Not on the other rows, nor on numpy's global generator, which rliable's bootstrap draws from."""
     import numpy as np
 
-    from sb3_cql.benchmark.report import summarise
+    from sb3_cql.protocol.report import summarise
 
     tasks = ["Panda-v0", "PandaForce-v0"]
     cql = ([1, 2, 3, 4, 5], np.array([[1.0, 0.2], [0.9, 0.3], [0.95, 0.1], [0.8, 0.25], [1.0, 0.15]]))
@@ -367,7 +367,7 @@ def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path):
     status, stderr = interrupt_while_starting(Bench(tmp_path).command("--algos", "pid", "--results-dir", "started"),
                                               cwd=tmp_path)  # fmt: skip
     assert status == 130
-    assert stderr.splitlines() == ["python -m sb3_cql.benchmark: interrupted while starting: nothing done"]
+    assert stderr.splitlines() == ["python -m sb3_cql.protocol: interrupted while starting: nothing done"]
     assert not (tmp_path / "started").exists()
 
 
@@ -391,3 +391,23 @@ def test_ctrl_c_during_the_protocol_ends_it_at_once_on_one_line_keeping_the_unit
         f"interrupted: the units done are recorded in {results}; the same command continues with the others"
     ]
     assert [path.name for path in (results / "records" / "eval").iterdir()] == ["pid-seed117-Panda-v0.json"]
+
+
+def test_the_former_name_still_imports_and_runs_and_says_where_the_protocol_moved():
+    """``sb3_cql.benchmark`` (module and command) forwards to ``sb3_cql.protocol`` with a DeprecationWarning."""
+    code = (
+        "import warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    import sb3_cql.benchmark as old\n"
+        "import sb3_cql.benchmark.runner, sb3_cql.protocol, sb3_cql.protocol.runner\n"
+        "assert [w.category for w in caught] == [DeprecationWarning], caught\n"
+        "assert 'sb3_cql.protocol' in str(caught[0].message)\n"
+        "assert sb3_cql.benchmark.runner is sb3_cql.protocol.runner\n"
+        "assert old.Protocol is sb3_cql.protocol.Protocol and old.BenchmarkError is sb3_cql.protocol.ProtocolError\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+    old = subprocess.run([sys.executable, "-m", "sb3_cql.benchmark", "--help"], capture_output=True, text=True)
+    assert old.returncode == 0, old.stderr
+    assert "python -m sb3_cql.benchmark is now python -m sb3_cql.protocol" in old.stderr
+    assert old.stdout.startswith("usage: python -m sb3_cql.protocol")

@@ -1,0 +1,562 @@
+"""The protocol's units of work, each recorded on disk when done: train an algorithm with one seed (RL-Zoo3 in a
+subprocess, resumed from its last checkpoint after a kill), fine-tune its best model online on a task (the same way),
+evaluate a policy on one task; and their scheduling over worker processes.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import inspect
+import multiprocessing
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import envs
+from sb3_cql.interrupts import die_with_parent
+from sb3_cql.protocol.records import FINETUNE_ROW, ResultsFolder, finetune_parts, read_json, system_info, write_json
+from sb3_cql.protocol.runs import Run
+
+#: The task every algorithm trains on (thesis 4.3); the final evaluation covers all of ``envs.ENV_IDS``.
+TRAIN_ENV = "Panda-v0"
+#: The thesis's five seeds.
+THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
+#: The scripted PD controllers (``envs.CONTROLLERS``: the thesis's, ours that regrasps, whose noisy runs are the data,
+#: the same with a random yaw at each attempt, and the reference that aligns the fingers with a fallen cylinder):
+#: evaluated, never trained.
+SCRIPTED = tuple(envs.CONTROLLERS)
+#: Rows of the thesis's Table 5.1, BC, and the regrasping PD controller (the other scripted rows on request).
+DEFAULT_ALGOS = ("cql", "bc", "pid", "pid-regrasp", "sac")
+#: Lines of a failed zoo run's log shown in the error.
+LOG_TAIL_LINES = 40
+#: The zoo config of the fine-tuning runs (in our hyperparams/).
+FINETUNE_CONFIG = "cql_finetune.yml"
+
+
+def fine_tunes(algo: str) -> bool:
+    """Whether the zoo algorithm ``algo`` fine-tunes online after offline training (it takes ``online_fraction``)."""
+    from rl_zoo3.utils import ALGOS
+
+    return algo in ALGOS and "online_fraction" in inspect.signature(ALGOS[algo].__init__).parameters
+
+
+class ProtocolError(RuntimeError):
+    """A unit of the protocol failed, or the request cannot be run (unknown algorithm, other settings on disk)."""
+
+
+class UnitsFailed(ProtocolError):
+    """Some units failed; the others are done and recorded."""
+
+
+@dataclass
+class Settings:
+    """What a results folder's numbers depend on: a re-run must use the same (see :meth:`check_folder`).
+
+    :param n_timesteps: training steps (the zoo's ``-n``); ``None``: each algorithm's config.
+    :param eval_freq: steps between evaluations during training (``--eval-freq``); ``None``: the config's.
+    :param eval_episodes: episodes of those evaluations (``--eval-episodes``); ``None``: the config's.
+    :param episodes: episodes of each final evaluation.
+    :param zoo_args: extra arguments of every ``rl_zoo3.train`` call.
+    :param dataset: the dataset every offline algorithm (a config with a ``dataset``) trains on; ``None``: each
+        config's. The thesis's size: ``sb3cql/Panda-v0/noisy-regrasp-delta-v0`` (10,000 episodes).
+    :param finetune_args: extra arguments of the fine-tuning runs' ``rl_zoo3.train`` calls (``zoo_args`` are the
+        offline trainings'; a fine-tuned model keeps their settings).
+    """
+
+    n_timesteps: int | None = None
+    eval_freq: int | None = None
+    eval_episodes: int | None = None
+    episodes: int = 100
+    zoo_args: list[str] = field(default_factory=list)
+    dataset: str | None = None
+    finetune_args: list[str] = field(default_factory=list)
+
+    def dataset_args(self, config_dataset: str | None) -> list[str]:
+        """The zoo arguments with ``dataset`` in place of ``config_dataset`` (an online algorithm's ``None`` stays),
+        as an item of the zoo arguments' own ``--hyperparams`` if they have one (a second flag would replace it)."""
+        if self.dataset is None or config_dataset is None:
+            return list(self.zoo_args)
+        item = f"dataset:{self.dataset!r}"
+        if "--hyperparams" in self.zoo_args:
+            at = self.zoo_args.index("--hyperparams") + 1
+            return [*self.zoo_args[:at], item, *self.zoo_args[at:]]
+        return [*self.zoo_args, "--hyperparams", item]
+
+    def check_folder(self, results: ResultsFolder) -> None:
+        """Record these settings in a new results folder, or check they are those of an existing one."""
+        recorded = read_json(results.protocol)
+        if recorded is None:
+            write_json(results.protocol, {"settings": asdict(self), "train_env": TRAIN_ENV})
+        elif {**asdict(Settings()), **recorded["settings"]} != asdict(self):  # settings added since: their defaults
+            raise ProtocolError(
+                f"{results.root} holds results made with other settings ({recorded['settings']}, not {asdict(self)}): "
+                "use another --results-dir, or the same options"
+            )
+
+
+@dataclass
+class Protocol:
+    """The whole protocol: which algorithms and seeds, where, with how many workers.
+
+    :param results: the results folder.
+    :param algos: RL-Zoo3 names of the algorithms, and the PD controllers' names (:data:`SCRIPTED`).
+    :param seeds: training and evaluation seeds.
+    :param tasks: evaluation tasks.
+    :param settings: the settings the numbers depend on.
+    :param save_freq: steps between checkpoints, the points a killed training resumes from.
+    :param workers: worker processes (each zoo process gets one torch thread when there are several).
+    :param finetune: tasks on which each seed's best offline model of every algorithm that fine-tunes (CQL) is
+        fine-tuned online (``hyperparams/cql_finetune.yml``), each a row of its own (:data:`FINETUNE_ROW`).
+    :param ray_address: run the units as Ray tasks on the cluster at this address (``auto``, ``host:port``,
+        ``ray://host:port``) instead of local processes; the results folder must be on storage every node sees.
+    """
+
+    results: ResultsFolder
+    algos: list[str]
+    seeds: list[int]
+    tasks: list[str]
+    settings: Settings
+    save_freq: int = 10_000
+    workers: int = 1
+    finetune: list[str] = field(default_factory=list)
+    ray_address: str | None = None
+
+    def check(self) -> None:
+        """Clear errors before any work: unknown algorithms or tasks, a zoo without our config for an algorithm."""
+        from rl_zoo3.utils import ALGOS
+
+        from sb3_cql.zoo.plugin import config_file
+
+        self._check_numbers()
+        self._check_results_folder()
+        unknown_tasks = sorted((set(self.tasks) | set(self.finetune)) - set(envs.ENV_IDS))
+        if unknown_tasks:
+            raise ProtocolError(f"unknown task(s) {unknown_tasks}: choose among {list(envs.ENV_IDS)}")
+        if self.finetune and not any(fine_tunes(algo) for algo in self.algos):
+            raise ProtocolError(f"--finetune {' '.join(self.finetune)}: none of --algos {' '.join(self.algos)} fine-tunes "
+                                 "online (cql does)")  # fmt: skip
+        own_config = any(arg.startswith(("--conf-file", "-conf")) for arg in self.settings.zoo_args)
+        for algo in self.algos:
+            if algo in SCRIPTED:
+                continue
+            if algo not in ALGOS:
+                raise ProtocolError(f"unknown algo {algo!r}: one of {sorted([*ALGOS, *SCRIPTED])}")
+            if not own_config and config_file(algo, TRAIN_ENV) is None:
+                raise ProtocolError(f"hyperparams/{algo}.yml has no {TRAIN_ENV} entry: add one, or give --conf-file")
+            if not own_config:
+                _check_dataset(self._dataset_id(algo, config_file(algo, TRAIN_ENV)))
+
+    def _check_numbers(self) -> None:
+        """Every count the protocol is given is one it can run with (a final evaluation of 0 episodes would record
+        NaN as a result)."""
+        settings = self.settings
+        counts = {"--workers": self.workers, "--episodes": settings.episodes, "--save-freq": self.save_freq,
+                  "--n-timesteps": settings.n_timesteps, "--eval-freq": settings.eval_freq,
+                  "--eval-episodes": settings.eval_episodes}  # fmt: skip
+        for option, value in counts.items():
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+                raise ProtocolError(f"{option} must be an integer >= 1, got {value!r}")
+        if not self.seeds:
+            raise ProtocolError("--seeds: give at least one seed")
+        for seed in self.seeds:
+            if not isinstance(seed, int) or seed < 0:
+                raise ProtocolError(f"--seeds must be integers >= 0, got {seed!r}")
+
+    def _check_results_folder(self) -> None:
+        """The results folder is a folder, or can be made, where this user may write; and a ``--ray`` cluster answers:
+        refused before anything is written."""
+        root = self.results.root
+        if root.exists() and not root.is_dir():
+            raise ProtocolError(f"--results-dir {root} is a file: give a folder")
+        existing = root
+        while not existing.exists():
+            existing = existing.parent
+        if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+            raise ProtocolError(f"--results-dir {root} cannot be written: {existing} is not a folder this user may "
+                                 "write in; give another --results-dir")  # fmt: skip
+        if self.ray_address is not None:
+            from sb3_cql.cluster import ClusterError, connect
+
+            try:
+                connect(self.ray_address)
+            except ClusterError as error:
+                raise ProtocolError(str(error)) from None
+
+    def _dataset_id(self, algo: str, config: Path) -> str | None:
+        """The dataset ``algo`` trains on: its config's ``dataset`` for :data:`TRAIN_ENV`, or the one ``--dataset`` or a
+        ``--hyperparams dataset:...`` item of the zoo arguments gives (evaluated as the zoo evaluates it)."""
+        dataset = config_dataset(config)
+        for item in self.settings.dataset_args(dataset):
+            key, _, value = item.partition(":")
+            if key == "dataset" and value:
+                try:
+                    dataset = eval(value)  # the zoo's own StoreDict does the same with the item
+                except Exception:
+                    raise ProtocolError(f"--zoo-args: {item!r} is not dataset:\"'ID'\" (a quoted string)") from None
+        return dataset if isinstance(dataset, str) else None
+
+
+def config_dataset(config: Path) -> str | None:
+    """The ``dataset`` of a zoo config's :data:`TRAIN_ENV` entry (``None``: an online algorithm)."""
+    dataset = (yaml.safe_load(config.read_text()) or {}).get(TRAIN_ENV, {}).get("dataset")
+    return dataset if isinstance(dataset, str) else None
+
+
+def _check_dataset(dataset_id: str | None) -> None:
+    """A dataset a training needs must exist, or be a standard one that the training collects first: otherwise the
+    error names it (missing, or partial: an interrupted collection) before any work starts."""
+    from sb3_cql.data import DatasetError, load_dataset
+    from sb3_cql.data.collection import standard_collection
+    from sb3_cql.data.ids import dataset_exists
+
+    if dataset_id is None or dataset_exists(dataset_id) or standard_collection(dataset_id) is not None:
+        return  # there, or collected on the first run (sb3_cql.data.ensure_dataset)
+    try:
+        load_dataset(dataset_id)
+    except DatasetError as error:
+        raise ProtocolError(str(error)) from None
+
+
+def _die_with_parent(parent: int) -> None:
+    """A killed runner takes its workers, and a killed worker its zoo run, along (the next run resumes from the
+    checkpoints) instead of leaving them to write into the results beside a new runner
+    (:func:`sb3_cql.interrupts.die_with_parent`)."""
+    die_with_parent(parent)
+
+
+def _start_worker(parent: int) -> None:
+    """A worker process dies with the runner (:func:`_die_with_parent`) and leaves Ctrl-C to it: the runner ends the
+    workers itself, at once, and says what was kept (a worker would print a traceback)."""
+    _die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _start_zoo_run(parent: int) -> None:
+    """A zoo process dies with its worker (:func:`_die_with_parent`) and takes Ctrl-C as the zoo does (saving the model
+    at that step), which its worker ignores (an ignored signal stays ignored across ``exec``)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    _die_with_parent(parent)
+
+
+#: Environment variables of the command that the protocol's Ray tasks see too (a node's own otherwise).
+RAY_TASK_ENV = ("MINARI_DATASETS_PATH", "MPLBACKEND")
+
+
+@contextmanager
+def _units_executor(protocol: Protocol) -> Iterator[tuple[Any, int]]:
+    """Where the protocol's units run, and how many at a time: ``protocol.workers`` local processes
+    (:func:`_workers`), or with ``protocol.ray_address`` Ray tasks of one CPU each (their zoo runs get one torch
+    thread), as many at a time as the cluster has CPUs unless ``workers`` says otherwise; a task whose worker or node
+    died is run again (3 times), continuing from its checkpoints."""
+    if protocol.ray_address is None:
+        with _workers(protocol.workers) as pool:
+            yield pool, protocol.workers
+        return
+    from sb3_cql.cluster import ClusterError, RayExecutor
+
+    env_vars = {name: os.environ[name] for name in RAY_TASK_ENV if name in os.environ}
+    try:
+        executor = RayExecutor(protocol.ray_address, num_cpus=1, env_vars=env_vars)
+    except ClusterError as error:
+        raise ProtocolError(str(error)) from None
+    with executor:
+        yield executor, protocol.workers if protocol.workers > 1 else executor.cpus
+
+
+@contextmanager
+def _workers(count: int) -> Iterator[ProcessPoolExecutor]:
+    """``count`` worker processes (spawned clean: no torch state, no inherited locks), waited for when the block ends;
+    on Ctrl-C (``KeyboardInterrupt``) they are ended at once instead, each taking its zoo run along, not waited for
+    through the units they run (what is recorded stays, for the same command to continue)."""
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(count, context, initializer=_start_worker, initargs=(os.getpid(),)) as pool:
+        try:
+            yield pool
+        except KeyboardInterrupt:
+            for worker in multiprocessing.active_children():
+                worker.terminate()
+            raise
+
+
+def _seconds(seconds: float) -> str:
+    minutes, seconds = divmod(int(round(seconds)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}h{minutes:02d}m{seconds:02d}s" if hours else f"{minutes}m{seconds:02d}s"
+
+
+def _log_tail(path: Path, lines: int = LOG_TAIL_LINES) -> str:
+    """The last ``lines`` lines of a zoo log, without PyBullet's ``argv[0]=`` noise."""
+    text = path.read_text(errors="replace").splitlines() if path.is_file() else []
+    return "\n".join([line for line in text if not line.startswith("argv[0]=")][-lines:])
+
+
+def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: str | None = None) -> dict[str, Any]:
+    """Train ``algo`` on :data:`TRAIN_ENV` with ``seed`` through ``python -m rl_zoo3.train``, continuing the run on
+    disk from its latest saved model if there is one (``-i``, ``-n`` the steps left); record and return the result.
+    With ``task``, fine-tune the recorded best model of that training online on ``task`` instead (the row
+    :data:`FINETUNE_ROW`), resumed the same way (a checkpoint brings its online transitions back).
+
+    :raises ProtocolError: if a zoo process fails (with the tail of its log) or makes no progress.
+    """
+    results, settings = protocol.results, protocol.settings
+    env_id, row = task or TRAIN_ENV, algo if task is None else FINETUNE_ROW.format(algo=algo, task=task)
+    zoo_folder = results.run_dir(seed) if task is None else results.run_dir(seed) / "finetune"
+    log, start_model = results.training_log(row, seed), None
+    if task is not None:
+        offline = read_json(results.training_record(algo, seed))
+        if offline is None:
+            raise ProtocolError(f"{algo} seed {seed} is not trained yet: it has no model to fine-tune")
+        start_model = results.root / offline["best_model"]
+    label = f"finetune {algo} seed {seed} {task}" if task else f"train {algo} seed {seed}"
+    print(f"[{label}] started", flush=True)
+    log_folder = zoo_folder / algo
+    log_folder.mkdir(parents=True, exist_ok=True)
+    times_path = log_folder / f"segment_times{'' if task is None else '_' + task}.json"
+    times: dict[str, list[float]] = read_json(times_path) or {}
+    from rl_zoo3.utils import get_latest_run_id
+
+    from sb3_cql.zoo.plugin import hyperparams_dir
+
+    run = Run.read(log_folder, env_id, outside_start=task is not None)
+    while not run.is_complete():
+        segment = f"{env_id}_{get_latest_run_id(str(log_folder), env_id) + 1}"  # the folder the zoo will make
+        command = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", env_id, "--seed", str(seed),
+                   "-f", str(zoo_folder), "-tb", str(run.tensorboard_folder(segment)),
+                   "--save-freq", str(protocol.save_freq)]  # fmt: skip
+        if threads is not None:
+            command += ["--num-threads", str(threads)]
+        if settings.eval_freq is not None:
+            command += ["--eval-freq", str(settings.eval_freq)]
+        if settings.eval_episodes is not None:
+            command += ["--eval-episodes", str(settings.eval_episodes)]
+        latest = run.latest_model()
+        if latest is None:
+            if start_model is not None:
+                command += ["-i", str(start_model)]
+            if settings.n_timesteps is not None:
+                command += ["-n", str(settings.n_timesteps)]
+        else:
+            assert run.n_timesteps is not None
+            command += ["-i", str(latest[1]), "-n", str(run.n_timesteps - latest[0])]
+        if task is None:
+            command += settings.dataset_args(_config_dataset(algo, settings))
+        else:
+            command += ["--conf-file", str(hyperparams_dir() / FINETUNE_CONFIG), *settings.finetune_args]
+        start = time.time()
+        times[segment] = [start, start]
+        write_json(times_path, times)
+        with open(log, "a") as file:
+            file.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} segment {segment}: {shlex.join(command)}\n")
+            file.flush()
+            returncode = subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                        preexec_fn=partial(_start_zoo_run, os.getpid())).returncode  # fmt: skip
+        times[segment] = [start, time.time()]
+        write_json(times_path, times)
+        if returncode != 0:
+            raise ProtocolError(f"{label}: the zoo failed (exit {returncode}); end of {log}:\n{_log_tail(log)}")
+        run = Run.read(log_folder, env_id, outside_start=task is not None)
+        progress = run.latest_model()
+        if progress is None or (latest is not None and progress[0] <= latest[0]):
+            raise ProtocolError(f"{label}: segment {segment} saved no progress; end of {log}:\n{_log_tail(log)}")
+    best_step, best_rate, best_path = run.best_model()
+    record = {
+        "algo": row,
+        "seed": seed,
+        "train_env": env_id,
+        "log_folder": str(log_folder.relative_to(results.root)),
+        "started_from": None if start_model is None else str(start_model.relative_to(results.root)),
+        "training_steps": run.n_timesteps,
+        "n_timesteps_override": settings.n_timesteps,
+        "best_step": best_step,
+        "best_eval_success_rate": best_rate,
+        "best_model": str(best_path.relative_to(results.root)),
+        "env_kwargs": run.env_kwargs,
+        "segments": [
+            {"folder": s.folder.name, "offset": s.offset, "cut": s.cut, "resumed_from": s.resumed_from} for s in run.segments
+        ],
+        "train_wall_time_s": round(_wall_time(run, times), 1),
+    }
+    write_json(results.training_record(row, seed), record)
+    return record
+
+
+def _config_dataset(algo: str, settings: Settings) -> str | None:
+    """The dataset of ``algo``'s config in our hyperparams/ (``None`` with a ``--conf-file`` of the zoo arguments)."""
+    from sb3_cql.zoo.plugin import config_file
+
+    if any(arg.startswith(("--conf-file", "-conf")) for arg in settings.zoo_args):
+        return None
+    config = config_file(algo, TRAIN_ENV)
+    return None if config is None else config_dataset(config)
+
+
+def _wall_time(run: Run, times: dict[str, list[float]]) -> float:
+    """Seconds spent in the run's segments: as timed by the runner, or up to a killed segment's last file."""
+    total = 0.0
+    for segment in run.segments:
+        start, end = times.get(segment.folder.name, (None, None))
+        if start is None:
+            continue
+        if end == start:  # killed along with the runner: until its last write
+            end = max((path.stat().st_mtime for path in segment.folder.rglob("*")), default=start)
+        total += end - start
+    return total
+
+
+def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int | None) -> dict[str, Any]:
+    """Success rate of ``algo``'s best model of ``seed`` (or the PD controller; ``algo`` may be a fine-tuned row) over
+    the final evaluation's episodes of ``task``, seeded with ``seed``; record and return it."""
+    from sb3_cql.evaluate import load_policy, success_rate
+
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    results, settings = protocol.results, protocol.settings
+    training = None if algo in SCRIPTED else read_json(results.training_record(algo, seed))
+    if algo not in SCRIPTED and training is None:
+        raise ProtocolError(f"{algo} seed {seed} is not trained yet")
+    start = time.time()
+    if training is None:  # a PD controller, in the tasks' default (absolute) action mode
+        policy, env_kwargs = load_policy(algo, None, task), {}
+    else:  # in the envs it was trained in (its action mode)
+        model = str(results.root / training["best_model"])
+        policy, env_kwargs = load_policy(model, finetune_parts(algo)[0], task), training["env_kwargs"]
+    rate = success_rate(policy, task, settings.episodes, seed, env_kwargs=env_kwargs)
+    record = {
+        "algo": algo,
+        "seed": seed,
+        "task": task,
+        "success_rate": rate,
+        "episodes": settings.episodes,
+        "best_step": None if training is None else training["best_step"],
+        "training_steps": None if training is None else training["training_steps"],
+        "train_wall_time_s": None if training is None else training["train_wall_time_s"],
+        "eval_wall_time_s": round(time.time() - start, 1),
+    }
+    write_json(results.evaluation_record(algo, seed, task), record)
+    return record
+
+
+#: A unit of work waiting for a worker: its name for the log, the function, its arguments.
+Unit = tuple[tuple[str, ...], Callable[..., dict[str, Any]], tuple[Any, ...]]
+
+
+@contextmanager
+def _exclusive(results: ResultsFolder) -> Iterator[None]:
+    """One protocol process per results folder at a time."""
+    results.root.mkdir(parents=True, exist_ok=True)
+    with open(results.root / ".lock", "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ProtocolError(f"another python -m sb3_cql.protocol is working in {results.root}") from None
+        yield
+
+
+def run_protocol(protocol: Protocol) -> dict[str, int]:
+    """Do every unit of ``protocol`` not yet recorded, ``protocol.workers`` at a time, printing one line per unit.
+
+    :return: counts of units ``done`` now, ``skipped`` (recorded before) and ``failed``.
+    :raises UnitsFailed: after the other units, if any failed.
+    """
+    protocol.check()
+    results = protocol.results
+    counts = {"done": 0, "skipped": 0, "failed": 0}
+    failures: list[str] = []
+    threads = 1 if protocol.workers > 1 or protocol.ray_address is not None else None
+    with _exclusive(results):
+        protocol.settings.check_folder(results)
+        system = results.root / "system.json"
+        if not system.is_file():
+            write_json(system, system_info())
+        with _units_executor(protocol) as (pool, slots):
+            # Units wait here, not in the pool's own (first in, first out) queue, so that a finished training's
+            # evaluations go first: its results come as soon as possible, not after every other training.
+            waiting: deque[Unit] = deque()
+            pending: dict[Future, tuple[str, ...]] = {}
+
+            def evaluations(algo: str, seed: int) -> list[Unit]:
+                units = []
+                for task in protocol.tasks:
+                    name = ("eval", algo, f"seed {seed}", task)
+                    if results.evaluation_record(algo, seed, task).is_file():
+                        counts["skipped"] += 1
+                        print(f"[{' '.join(name)}] skipped: recorded", flush=True)
+                    else:
+                        units.append((name, evaluate, (protocol, algo, seed, task, threads)))
+                return units
+
+            def finetunings(algo: str, seed: int) -> list[Unit]:
+                units = []
+                for task in protocol.finetune if fine_tunes(algo) else []:
+                    row = FINETUNE_ROW.format(algo=algo, task=task)
+                    if results.training_record(row, seed).is_file():
+                        counts["skipped"] += 1
+                        print(f"[finetune {algo} seed {seed} {task}] skipped: recorded", flush=True)
+                        units += evaluations(row, seed)
+                    else:
+                        units.append((("finetune", algo, f"seed {seed}", task), train, (protocol, algo, seed, threads, task)))
+                return units
+
+            def submit() -> None:
+                while waiting and len(pending) < slots:
+                    name, function, arguments = waiting.popleft()
+                    pending[pool.submit(function, *arguments)] = name
+
+            for seed in protocol.seeds:
+                for algo in protocol.algos:
+                    if algo in SCRIPTED or results.training_record(algo, seed).is_file():
+                        if algo not in SCRIPTED:
+                            counts["skipped"] += 1
+                            print(f"[train {algo} seed {seed}] skipped: recorded", flush=True)
+                        waiting.extend(evaluations(algo, seed))
+                        if algo not in SCRIPTED:
+                            waiting.extend(finetunings(algo, seed))
+                    else:
+                        print(f"[train {algo} seed {seed}] queued, log {results.training_log(algo, seed)}", flush=True)
+                        waiting.append((("train", algo, f"seed {seed}"), train, (protocol, algo, seed, threads)))
+            submit()
+            while pending:
+                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    name = pending.pop(future)
+                    label = f"[{' '.join(name)}]"
+                    error = future.exception()
+                    if error is not None:
+                        counts["failed"] += 1
+                        failures.append(f"{label} {error}")
+                        print(f"{label} FAILED: {error}", flush=True)
+                        continue
+                    counts["done"] += 1
+                    record = future.result()
+                    if name[0] in ("train", "finetune"):
+                        rate = record["best_eval_success_rate"]
+                        best = "no evaluation" if rate is None else f"best evaluation {rate:.3f}"
+                        wall = _seconds(record["train_wall_time_s"])
+                        print(f"{label} done: {record['training_steps']} steps in {len(record['segments'])} segment(s), "
+                              f"{best} at step {record['best_step']}, {wall}", flush=True)  # fmt: skip
+                        then = evaluations(record["algo"], record["seed"])
+                        if name[0] == "train":
+                            then += finetunings(record["algo"], record["seed"])
+                        waiting.extendleft(reversed(then))
+                    else:
+                        print(f"{label} success rate {record['success_rate']:.3f} over {record['episodes']} episodes, "
+                              f"{_seconds(record['eval_wall_time_s'])}", flush=True)  # fmt: skip
+                submit()
+    if failures:
+        raise UnitsFailed(f"{len(failures)} unit(s) failed:\n" + "\n".join(failures))
+    return counts
