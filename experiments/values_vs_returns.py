@@ -64,14 +64,12 @@ def with_returns_to_go(model: CQL, buffer: ReplayBuffer) -> ReturnToGoReplayBuff
 
 def load_buffers(model: CQL, buffer_path: str) -> tuple[ReturnToGoReplayBuffer, ReturnToGoReplayBuffer]:
     """``(offline data, online transitions)`` of a fine-tuned model, both with returns-to-go."""
-    model._ensure_offline_data()
-    offline = model.replay_buffer
+    offline = model.load_offline_data()
     model.replay_buffer = None
     model.load_replay_buffer(buffer_path)
     if not isinstance(model.replay_buffer, MixedReplayBuffer):
         kind = type(model.replay_buffer).__name__
         raise ValueError(f"{buffer_path} holds no online transitions of a fine-tuning (a {kind})")
-    assert offline is not None
     return with_returns_to_go(model, offline), with_returns_to_go(model, model.replay_buffer.online)
 
 

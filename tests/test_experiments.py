@@ -337,8 +337,7 @@ def test_values_vs_returns_scores_a_chunked_model_at_the_stored_chunks(inputs, m
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
     script = load_script("values_vs_returns")
     model = CQL.load(inputs / "chunked.zip")
-    model._ensure_offline_data()
-    chunks = model.replay_buffer
+    chunks = model.load_offline_data()
     offline = script.with_returns_to_go(model, chunks)
     rows = np.arange(0, chunks.size(), 7)
     np.testing.assert_array_equal(script.stored_actions(model, offline, rows), chunks.chunk_actions(rows))

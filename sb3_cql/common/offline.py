@@ -556,6 +556,19 @@ class OfflineSAC(SAC):
         if self.action_chunk > 1:  # an episode that ended starts the next with a new chunk
             self._rollout_episode_starts = self._rollout_episode_starts | np.asarray(dones, dtype=bool)
 
+    def load_offline_data(self) -> ReplayBuffer:
+        """The model's offline data, in its replay buffer, as :meth:`learn` has them before training: a loaded model
+        (whose buffer :meth:`load` leaves at one transition) refills it from its dataset id, collecting a missing
+        standard dataset first; a buffer of one batch or more is kept as it is.
+
+        :return: the replay buffer (``model.replay_buffer``).
+        :raises SettingError: the buffer holds fewer than ``batch_size`` transitions and no dataset id says where
+            to reload them from.
+        """
+        self._ensure_offline_data()
+        assert self.replay_buffer is not None
+        return self.replay_buffer
+
     def _ensure_offline_data(self) -> None:
         """Refill a loaded model's buffer from its dataset id; refuse a buffer smaller than one batch."""
         too_few = self.replay_buffer is None or self.replay_buffer.size() < self.batch_size
