@@ -1,7 +1,8 @@
 """The models committed under results/models: each loads with ``CQL.load`` and acts in the task it was fine-tuned on,
-and it is the model at the end of the fine-tuning its record describes."""
+and it is the model at the end of the fine-tuning its record describes; every study folder says how it was made."""
 
 import json
+import re
 from pathlib import Path
 
 import gymnasium as gym
@@ -47,3 +48,15 @@ def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
     assert env.action_space.contains(action.astype(env.action_space.dtype))
     np.testing.assert_array_equal(model.predict(observation, deterministic=True)[0], action)
     env.close()
+
+
+#: The protocol's own folders at the top of results/; every other folder is a study.
+PROTOCOL_FOLDERS = {"figures", "records", "runs", "models"}
+STUDIES = sorted(path for path in RESULTS.iterdir() if path.is_dir() and path.name not in PROTOCOL_FOLDERS)
+
+
+@pytest.mark.parametrize("study", STUDIES, ids=lambda path: path.name)
+def test_every_study_folder_names_its_command_and_date(study):
+    readme = (study / "README.md").read_text()
+    assert "python -m " in readme and re.search(r"\b2026-\d\d-\d\d\b", readme)
+    assert f"]({study.name}/README.md)" in (RESULTS / "README.md").read_text()  # listed in the results folder's index
