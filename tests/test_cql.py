@@ -22,7 +22,7 @@ from stable_baselines3.common.save_util import load_from_pkl
 from sb3_cql import BC, CQL
 from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer, SettingError
 from sb3_cql.common.allocator import retain_freed_memory
-from sb3_cql.cql import NormalizedFlatten
+from sb3_cql.cql import CalQL, NormalizedFlatten
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset
 
@@ -84,6 +84,7 @@ def test_save_and_load_round_trip(tmp_path, options):
         th.testing.assert_close(loaded.log_alpha_prime, model.log_alpha_prime)
         assert loaded.alpha_prime_optimizer.state_dict()["state"]
     if options.get("cql_calibrated"):
+        assert isinstance(model, CalQL) and isinstance(loaded, CalQL)
         assert loaded.cql_calibrated and isinstance(loaded.replay_buffer, ReturnToGoReplayBuffer)
         model.save_replay_buffer(tmp_path / "buffer")
         loaded.load_replay_buffer(tmp_path / "buffer")
@@ -243,21 +244,47 @@ def test_calibration_lifts_the_policy_groups_to_the_bound_and_logs_how_often(tmp
     data = model.replay_buffer.sample(64)
     policy = model.actor.get_action_dist_params(data.observations)[:2]
     policy = (policy[0].detach(), policy[1].detach())
+    actions, log_densities = model.sample_conservative_actions(data, policy, policy)
+    q_data, q_sampled = model.q_values_at_data_and_sampled_actions(data, actions)
     gaps = {}
     for name, bound in (("high", 1000.0), ("none", -np.inf)):
-        th.manual_seed(0)
         logged = {}
-        _, gap = model.conservative_gaps(data._replace(returns_to_go=th.full((64, 1), bound)), policy, policy, logged)
+        gap = model.conservative_gaps(q_data, q_sampled, log_densities, data._replace(returns_to_go=th.full((64, 1), bound)),
+                                      logged)  # fmt: skip
         gaps[name] = (gap[0].item(), logged["train/cql_bound_rate"][0])
-    model.cql_calibrated = False
-    th.manual_seed(0)
-    plain = model.conservative_gaps(data, policy, policy, {})[1][0].item()
+    plain_cql = CQL("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64, policy_kwargs=TINY)
+    logged = {}
+    plain = plain_cql.conservative_gaps(q_data, q_sampled, log_densities, data, logged)[0].item()
+    assert "train/cql_bound_rate" not in logged
     assert gaps["high"][0] > 1000.0 and gaps["high"][1] == 1.0  # every policy-action value lifted
     assert gaps["none"] == (pytest.approx(plain, rel=1e-6), 0.0)
-    model.cql_calibrated = True
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(20, log_interval=10)
     assert "train/cql_bound_rate" in pd.read_csv(tmp_path / "progress.csv").columns
+
+
+def test_cql_calibrated_is_calql_from_construction_and_load(tmp_path):
+    """``CQL(..., cql_calibrated=True)`` is a :class:`CalQL` and trains as one from the same seed; a model saved with
+    the flag loads as one with ``CQL.load``, a plain model given the flag at ``load`` becomes one, and a CalQL is
+    calibrated whatever its ``cql_calibrated``."""
+    buffer = random_pendulum_buffer(400)
+    models = []
+    for algorithm, options in ((CQL, {"cql_calibrated": True}), (CalQL, {})):  # each seeded, then trained
+        model = algorithm("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=32, policy_kwargs=TINY, seed=3, **options)
+        assert type(model) is CalQL and model.cql_calibrated and isinstance(model.replay_buffer, ReturnToGoReplayBuffer)
+        models.append(model.learn(30))
+    for first, second in zip(models[0].policy.parameters(), models[1].policy.parameters(), strict=True):
+        th.testing.assert_close(first, second, rtol=0.0, atol=0.0)
+    models[1].save(tmp_path / "calibrated")
+    assert type(CQL.load(tmp_path / "calibrated")) is CalQL
+    assert type(CQL.load(tmp_path / "calibrated", cql_calibrated=False)) is CQL  # as before: the keyword decides
+    plain = CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=32, policy_kwargs=TINY, seed=3)
+    assert type(plain) is CQL and not plain.cql_calibrated and type(plain.replay_buffer) is ReplayBuffer
+    plain.save(tmp_path / "plain")
+    assert type(CQL.load(tmp_path / "plain")) is CQL
+    assert type(CQL.load(tmp_path / "plain", cql_calibrated=True)) is CalQL
+    assert CalQL.load(tmp_path / "plain").cql_calibrated
+    assert CalQL("MlpPolicy", "Pendulum-v1", dataset=buffer, cql_calibrated=False, policy_kwargs=TINY).cql_calibrated
 
 
 def test_online_fine_tuning_keeps_the_offline_data_and_continues_from_its_saved_transitions(tmp_path):

@@ -124,6 +124,33 @@ def test_the_critic_loss_of_one_batch_is_corls(options):
     assert model.last_critic_loss.item() == pytest.approx(expected, rel=1e-6, abs=1e-6)
 
 
+def test_the_conservative_loss_takes_the_multiplier_and_its_own_step_moves_it():
+    """With ``cql_target_action_gap``, :meth:`conservative_loss` is ``alpha' * cql_alpha * (gap - target)`` summed over
+    the critics and leaves ``alpha'`` as it is; :meth:`update_alpha_prime` makes the dual step, raising ``alpha'`` while
+    the gaps exceed the target and lowering it below."""
+    model = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(200), cql_alpha=3.0, cql_target_action_gap=2.0,
+                policy_kwargs=TINY, seed=0)  # fmt: skip
+    model.log_alpha_prime.data.fill_(np.log(0.5))
+    gaps = [th.tensor(5.0, requires_grad=True), th.tensor(4.0, requires_grad=True)]
+    loss = model.conservative_loss(gaps)
+    assert loss.item() == pytest.approx(0.5 * 3.0 * ((5.0 - 2.0) + (4.0 - 2.0)))
+    assert model.log_alpha_prime.item() == pytest.approx(np.log(0.5))  # no step taken
+    assert model.alpha_prime_optimizer.state_dict()["state"] == {}
+    logs = {}
+    model.update_alpha_prime(gaps, logs)
+    assert model.log_alpha_prime.item() > np.log(0.5)
+    assert logs["train/cql_alpha_prime"] == [pytest.approx(0.5)]  # before the step
+    assert logs["train/cql_alpha_prime_loss"] == [pytest.approx(-0.5 * 0.5 * 3.0 * 5.0)]
+    model.alpha_prime_optimizer.state.clear()  # Adam's first step, without the momentum of the one above
+    before = model.log_alpha_prime.item()
+    model.update_alpha_prime([th.tensor(1.0), th.tensor(0.0)], {})
+    assert model.log_alpha_prime.item() < before
+    loss.backward()
+    assert [gap.grad.item() for gap in gaps] == pytest.approx([1.5, 1.5])  # alpha' * cql_alpha, alpha' detached
+    plain = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(200), cql_alpha=3.0, policy_kwargs=TINY)
+    assert plain.alpha_prime_optimizer is None and plain.conservative_loss(gaps).item() == pytest.approx(27.0)
+
+
 def train_copy(model_class: type[CQL], cql_alpha: float, steps: int, buffer: ReplayBuffer) -> CQL:
     model = model_class("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=BATCH, cql_alpha=cql_alpha,
                         cql_n_actions=N_ACTIONS, policy_kwargs=TINY, seed=0)  # fmt: skip

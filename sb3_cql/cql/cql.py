@@ -21,6 +21,7 @@ from sb3_cql.common.offline import (
     SettingError,
     TrainingDivergedError,  # noqa: F401 (importable from here, where it was first defined)
     check_count,
+    check_finite,
     check_non_negative,
     finite_loss_value,
     shaped_rewards,
@@ -53,7 +54,8 @@ class CQL(OfflineSAC):
     callbacks such as ``EvalCallback`` use their own envs). Observations are z-scored with the dataset's
     statistics (``normalize_observations``) inside the policy, so ``predict`` applies the same normalisation after
     ``save``/``load``. With ``online_fraction``, :meth:`learn` fine-tunes online, the dataset kept in the buffer
-    (the same loss; ``cql_calibrated`` gives new episodes their returns-to-go when they end).
+    (the same loss; a calibrated model, :class:`~sb3_cql.cql.CalQL`, gives new episodes their returns-to-go when
+    they end).
 
     ``n_steps`` (SB3's n-step returns): the TD target bootstraps after up to ``n_steps`` steps of the data's episode
     with the samples' ``discounts``, as SAC's (the critics' rewards summed over those steps, :meth:`critic_rewards`).
@@ -92,13 +94,14 @@ class CQL(OfflineSAC):
         near it: the term becomes ``alpha' * cql_alpha * (gap - cql_target_action_gap)`` per critic, as CORL's.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
-    :param cql_calibrated: calibrated CQL, Cal-QL (Nakamoto et al. 2023, https://arxiv.org/abs/2303.05479): in the
-        conservative term, Q at the policy's actions (at ``s`` and ``s'``) is replaced by ``max(Q, G(s))``, with
-        ``G(s)`` the discounted return-to-go of the data's episode from ``s`` under the critics' rewards
-        (``reward_scale``, ``reward_bias``), so the term stops pushing the policy's values below what the data earned.
-        The replay buffer becomes a :class:`~sb3_cql.common.ReturnToGoReplayBuffer` (returns-to-go computed when the
-        data are loaded, and for online episodes when they end). ``train/cql_bound_rate`` logs the fraction of
-        policy-action values the bound lifted.
+    :param cql_calibrated: calibrated CQL, Cal-QL (Nakamoto et al. 2023, https://arxiv.org/abs/2303.05479): the
+        model is a :class:`~sb3_cql.cql.CalQL` (from its setup on, also when loaded from a model saved with it), whose
+        conservative term replaces Q at the policy's actions (at ``s`` and ``s'``) by ``max(Q, G(s))``, with ``G(s)``
+        the discounted return-to-go of the data's episode from ``s`` under the critics' rewards (``reward_scale``,
+        ``reward_bias``), so the term stops pushing the policy's values below what the data earned. The replay buffer
+        becomes a :class:`~sb3_cql.common.ReturnToGoReplayBuffer` (returns-to-go computed when the data are loaded,
+        and for online episodes when they end). ``train/cql_bound_rate`` logs the fraction of policy-action values
+        the bound lifted.
     :param bc_steps: gradient steps at the start of training (counted across ``learn`` calls and ``save``/``load``)
         whose actor loss is behaviour cloning in place of the Q-value (the deterministic action fitted to the data
         actions by least squares), next to the entropy term, which sets the spread alone (through the log-std head);
@@ -164,6 +167,9 @@ class CQL(OfflineSAC):
         "MultiInputPolicy": MultiInputPolicy,
     }
     policy_from_sac: ClassVar[dict[type[BasePolicy], type[BasePolicy]]] = FROM_SAC
+    #: The replay buffer holds the data's returns-to-go (a :class:`~sb3_cql.common.ReturnToGoReplayBuffer`), for a
+    #: hook that reads them (:class:`~sb3_cql.cql.CalQL`'s :meth:`policy_values_in_logsumexp`).
+    needs_returns_to_go: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -276,8 +282,6 @@ class CQL(OfflineSAC):
         check_count("cql_n_actions", self.cql_n_actions, 1)
         check_non_negative([("cql_alpha", self.cql_alpha), ("actor_bc_weight", self.actor_bc_weight)])
         check_non_negative([("cql_temperature", self.cql_temperature)], strictly=True)
-        from sb3_cql.common.offline import check_finite
-
         check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
         if self.cql_target_action_gap is not None:
             check_finite([("cql_target_action_gap", self.cql_target_action_gap)])
@@ -285,25 +289,31 @@ class CQL(OfflineSAC):
             check_non_negative([("bc_learning_rate", self.bc_learning_rate)], strictly=True)
         if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
             raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
-        if self.cql_calibrated and self.action_chunk > 1:
+        if self.needs_returns_to_go and self.action_chunk > 1:
             raise SettingError("cql_calibrated is not supported with action_chunk > 1 yet (returns-to-go of chunk samples)")
 
     def _setup_model(self) -> None:
-        if self.cql_calibrated and isinstance(self.observation_space, spaces.Dict):
+        from sb3_cql.cql.cal_ql import CalQL  # here, not at the top: cal_ql imports this module
+
+        if self.cql_calibrated and not isinstance(self, CalQL):
+            # The one step that construction and load() both take with every setting known (the keywords, a saved
+            # model's data, load's keywords): a calibrated model is a CalQL from here on. CalQL adds methods, no state.
+            self.__class__ = CalQL
+        if self.needs_returns_to_go and isinstance(self.observation_space, spaces.Dict):
             raise SettingError("cql_calibrated is not supported with Dict observations (returns-to-go need a Box buffer)")
         super()._setup_model()
-        if self.cql_calibrated and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
-            self._calibrate_buffer()
+        if self.needs_returns_to_go and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
+            self._add_returns_to_go_to_buffer()
         if self.cql_target_action_gap is not None:
             self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
 
     def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
         super()._fill_from_dataset(dataset)
-        if self.cql_calibrated:
-            self._calibrate_buffer()
+        if self.needs_returns_to_go:
+            self._add_returns_to_go_to_buffer()
 
-    def _calibrate_buffer(self) -> None:
+    def _add_returns_to_go_to_buffer(self) -> None:
         """The replay buffer as a :class:`ReturnToGoReplayBuffer` (its arrays shared) under this model's rewards."""
         assert self.replay_buffer is not None
         self.replay_buffer = ReturnToGoReplayBuffer.from_replay_buffer(
@@ -313,10 +323,12 @@ class CQL(OfflineSAC):
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's ``train()`` with the conservative term added to the critic loss. Each variant of the update is one
         hook, overridable by a subclass: :meth:`compute_target` (SB3's n-step ``discounts``, the critics' rewards,
-        :meth:`next_state_values` with the max backup), :meth:`conservative_gaps` (Cal-QL in
-        :meth:`calibrate_policy_values`), :meth:`conservative_loss` (the Lagrange multiplier), :meth:`check_critic_loss`
-        (divergence) and :meth:`compute_actor_loss` (SAC's, or the warm start's :meth:`warm_start_actor_loss`, with
-        the imitation anchor of :meth:`anchor_actor_loss`)."""
+        :meth:`next_state_values` with the max backup), :meth:`td_loss`, :meth:`conservative_gaps` (Cal-QL's bound in
+        :meth:`policy_values_in_logsumexp`), :meth:`conservative_loss` (with the Lagrange multiplier, whose dual step
+        is :meth:`update_alpha_prime`), :meth:`check_critic_loss` (divergence) and :meth:`compute_actor_loss` (SAC's,
+        or the warm start's :meth:`warm_start_actor_loss`, with the imitation anchor of :meth:`anchor_actor_loss`).
+        One critic pass (:meth:`q_values_at_data_and_sampled_actions`) scores the data actions, for the TD loss and
+        the conservative term, and the sampled actions of :meth:`sample_conservative_actions`, for the term."""
         self.policy.set_training_mode(True)
         optimizers = [self.critic.optimizer]
         optimizers += [opt for opt in (self.ent_coef_optimizer, self.alpha_prime_optimizer) if opt is not None]
@@ -355,9 +367,13 @@ class CQL(OfflineSAC):
                 target_q_values = self.compute_target(replay_data, next_policy, ent_coef, discounts)
 
             detached_policy = (policy[0].detach(), policy[1].detach())
-            current_q_values, gaps = self.conservative_gaps(replay_data, detached_policy, next_policy, logs)
-            td_loss = self.td_loss(current_q_values, target_q_values)
-            conservative_loss = self.conservative_loss(gaps, logs)
+            sampled_actions, log_densities = self.sample_conservative_actions(replay_data, detached_policy, next_policy)
+            q_data, q_sampled = self.q_values_at_data_and_sampled_actions(replay_data, sampled_actions)
+            td_loss = self.td_loss(q_data, target_q_values)
+            gaps = self.conservative_gaps(q_data, q_sampled, log_densities, replay_data, logs)
+            conservative_loss = self.conservative_loss(gaps)
+            if self.alpha_prime_optimizer is not None:  # after the loss took alpha' as it was, as CORL's
+                self.update_alpha_prime(gaps, logs)
             critic_loss = td_loss + conservative_loss
             critic_loss_value = self.check_critic_loss(critic_loss)
             self.critic.optimizer.zero_grad()
@@ -430,32 +446,24 @@ class CQL(OfflineSAC):
 
     # The conservative term.
 
-    def conservative_gaps(
+    def sample_conservative_actions(
         self,
         replay_data: ReplayBufferSamples,
         policy: tuple[th.Tensor, th.Tensor],
         next_policy: tuple[th.Tensor, th.Tensor],
-        logs: dict[str, list[float]],
-    ) -> tuple[list[th.Tensor], list[th.Tensor]]:
-        """Each critic's Q at the data actions and its gap ``T * logsumexp(Q(s, a) / T) - Q(s, a_data)``, from one
-        critic pass (:meth:`~sb3_cql.cql.policies.CQLCritic.forward_fused`) over the data actions and the
-        ``3 * cql_n_actions`` sampled actions of every state: uniform, the policy's at s and the policy's at s' (drawn
-        from the (mean actions, log-std) ``policy`` and ``next_policy``), importance-weighted by their densities;
-        the policy groups go through :meth:`calibrate_policy_values`. Logs ``train/cql_q_*`` and ``train/cql_gap``."""
-        observations = replay_data.observations
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """The actions the log-sum-exp runs over and their log-densities, drawn without gradients: ``cql_n_actions``
+        per state of each of three groups, uniform on [-1, 1], the policy's at s and the policy's at s' (from the
+        (mean actions, log-std) ``policy`` and ``next_policy``). The actions are ``(3 * batch * cql_n_actions,
+        action_dim)``, group by group and state-major within a group; the log-densities ``(batch, 3 * cql_n_actions)``,
+        a state's row holding its groups side by side (the uniform density ``(1/2)^|A|``, the policy's own)."""
         batch_size, n = replay_data.actions.shape[0], self.cql_n_actions
         action_dim = replay_data.actions.shape[1]  # the action's, or with action_chunk the whole chunk's
         with th.no_grad():
             random_actions = th.empty(batch_size * n, action_dim, device=self.device).uniform_(-1.0, 1.0)
             policy_actions, policy_log_prob = self.sample_policy_actions(*policy, n)
             next_policy_actions, next_policy_log_prob = self.sample_policy_actions(*next_policy, n)
-        # The data's states, then each state n times for each of the three groups (observations of any shape).
-        all_observations = _map(
-            lambda tensor: th.cat([tensor, tensor.repeat_interleave(n, dim=0).repeat(3, *[1] * (tensor.dim() - 1))]),
-            observations,
-        )
-        actions = th.cat([replay_data.actions, random_actions, policy_actions, next_policy_actions])
-        # Importance weights: uniform density (1/2)^|A| on [-1, 1]^|A|, the policy's own density otherwise.
+        actions = th.cat([random_actions, policy_actions, next_policy_actions])
         log_densities = th.cat(
             [
                 th.full((batch_size, n), action_dim * math.log(0.5), device=self.device),
@@ -464,60 +472,97 @@ class CQL(OfflineSAC):
             ],
             dim=1,
         )
-        current_q_values, gaps = [], []
+        return actions, log_densities
+
+    def q_values_at_data_and_sampled_actions(
+        self, replay_data: ReplayBufferSamples, sampled_actions: th.Tensor
+    ) -> tuple[list[th.Tensor], th.Tensor]:
+        """Each critic's Q at the data actions (a ``(batch, 1)`` tensor a critic) and at the ``sampled_actions`` of
+        :meth:`sample_conservative_actions` (all critics' in one ``(n_critics, 3, batch, cql_n_actions)`` tensor), from
+        one critic pass (:meth:`~sb3_cql.cql.policies.CQLCritic.forward_fused`) over the data's states and each state
+        ``3 * cql_n_actions`` times."""
+        batch_size, n = replay_data.actions.shape[0], self.cql_n_actions
+        # The data's states, then each state n times for each of the three groups (observations of any shape).
+        all_observations = _map(
+            lambda tensor: th.cat([tensor, tensor.repeat_interleave(n, dim=0).repeat(3, *[1] * (tensor.dim() - 1))]),
+            replay_data.observations,
+        )
+        actions = th.cat([replay_data.actions, sampled_actions])
         # CQLCritic's fused pass, also on SAC's own critic (a policy class of the user's may build it).
         forward_fused = getattr(self.critic, "forward_fused", None)
         forward_fused = forward_fused or functools.partial(CQLCritic.forward_fused, self.critic)
-        for index, q_values in enumerate(forward_fused(all_observations, actions), start=1):
-            q_data = q_values[:batch_size]
-            raw_sampled = q_values[batch_size:].reshape(3, batch_size, n)
-            sampled = th.cat([raw_sampled[:1], self.calibrate_policy_values(raw_sampled[1:], replay_data)])
-            importance_weighted = th.cat(list(sampled), dim=1) - log_densities
+        q_values = forward_fused(all_observations, actions)
+        q_data = [critic_q[:batch_size] for critic_q in q_values]
+        q_sampled = th.stack([critic_q[batch_size:].reshape(3, batch_size, n) for critic_q in q_values])
+        return q_data, q_sampled
+
+    def conservative_gaps(
+        self,
+        q_data: list[th.Tensor],
+        q_sampled: th.Tensor,
+        log_densities: th.Tensor,
+        replay_data: ReplayBufferSamples,
+        logs: dict[str, list[float]],
+    ) -> list[th.Tensor]:
+        """Each critic's gap ``mean(T * logsumexp_a(Q(s, a) / T) - Q(s, a_data))``, the log-sum-exp over the sampled
+        actions importance-weighted by their ``log_densities``, from the Q-values of
+        :meth:`q_values_at_data_and_sampled_actions`; the policy groups' values go through
+        :meth:`policy_values_in_logsumexp`. Logs ``train/cql_q_*`` and ``train/cql_gap`` (the first critic's)."""
+        q_policy = self.policy_values_in_logsumexp(q_sampled[:, 1:], replay_data, logs)
+        gaps = []
+        for critic_q_data, q_random, critic_q_policy in zip(q_data, q_sampled[:, 0], q_policy, strict=True):
+            importance_weighted = th.cat([q_random, *critic_q_policy], dim=1) - log_densities
             logsumexp = th.logsumexp(importance_weighted / self.cql_temperature, dim=1) * self.cql_temperature
-            current_q_values.append(q_data)
-            gaps.append(logsumexp.mean() - q_data.mean())
-            if index == 1:
-                _append(logs, "train/cql_q_data", q_data.mean().item())
-                _append(logs, "train/cql_q_random", raw_sampled[0].mean().item())
-                _append(logs, "train/cql_q_policy", raw_sampled[1].mean().item())
-                _append(logs, "train/cql_q_next_policy", raw_sampled[2].mean().item())
-                _append(logs, "train/cql_gap", gaps[0].item())
-                if self.cql_calibrated:
-                    rate = (raw_sampled[1:] < replay_data.returns_to_go).float().mean().item()
-                    _append(logs, "train/cql_bound_rate", rate)
-        return current_q_values, gaps
+            gaps.append(logsumexp.mean() - critic_q_data.mean())
+        _append(logs, "train/cql_q_data", q_data[0].mean().item())
+        _append(logs, "train/cql_q_random", q_sampled[0, 0].mean().item())
+        _append(logs, "train/cql_q_policy", q_sampled[0, 1].mean().item())
+        _append(logs, "train/cql_q_next_policy", q_sampled[0, 2].mean().item())
+        _append(logs, "train/cql_gap", gaps[0].item())
+        return gaps
 
-    def calibrate_policy_values(self, q_policy: th.Tensor, replay_data: ReplayBufferSamples) -> th.Tensor:
-        """Cal-QL: with ``cql_calibrated``, the policy's values (``(2, batch, cql_n_actions)``: at s and at s') are
-        pushed down no further than the data's return-to-go, ``max(Q, G(s))``; unchanged otherwise."""
-        if not self.cql_calibrated:
-            return q_policy
-        return th.maximum(q_policy, replay_data.returns_to_go)  # type: ignore[attr-defined]
+    def policy_values_in_logsumexp(
+        self, q_policy: th.Tensor, replay_data: ReplayBufferSamples, logs: dict[str, list[float]]
+    ) -> th.Tensor:
+        """The values of the policy's actions as the log-sum-exp takes them: CQL's, as the critics give them.
+        :class:`~sb3_cql.cql.CalQL` bounds them below by the return-to-go.
 
-    def td_loss(self, current_q_values: list[th.Tensor], target_q_values: th.Tensor) -> th.Tensor:
-        """The TD loss of the critics: each critic's mean squared error to the target, summed over the critics, as
-        the reference implementations weigh it against the conservative term (tinkoff-ai/CORL's
-        ``qf1_loss + qf2_loss``, the CQL paper's code). (SAC's own ``0.5 * sum`` would halve the TD loss beside the
-        conservative term, and so double what ``cql_alpha`` means.)"""
-        return sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+        :param q_policy: every critic's Q at the policy's actions at s and at s', ``(n_critics, 2, batch,
+            cql_n_actions)``.
+        :param replay_data: the batch.
+        :param logs: the step's logs.
+        """
+        return q_policy
 
-    def conservative_loss(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
+    def td_loss(self, q_data: list[th.Tensor], target_q_values: th.Tensor) -> th.Tensor:
+        """The TD loss of the critics, from each critic's Q at the data actions: each one's mean squared error to the
+        target, summed over the critics, as the reference implementations weigh it against the conservative term
+        (tinkoff-ai/CORL's ``qf1_loss + qf2_loss``, the CQL paper's code). (SAC's own ``0.5 * sum`` would halve the TD
+        loss beside the conservative term, and so double what ``cql_alpha`` means.)"""
+        return sum(F.mse_loss(current_q, target_q_values) for current_q in q_data)
+
+    def alpha_prime(self) -> th.Tensor:
+        """The Lagrange multiplier ``alpha' = clamp(exp(log_alpha_prime), 0, 1e6)``, as tinkoff-ai/CORL's."""
+        assert self.log_alpha_prime is not None
+        return self.log_alpha_prime.exp().clamp(0.0, MAX_ALPHA_PRIME)
+
+    def conservative_loss(self, gaps: list[th.Tensor]) -> th.Tensor:
         """The term added to the TD loss: ``cql_alpha`` times each critic's gap, summed over the critics; with
         ``cql_target_action_gap``, tinkoff-ai/CORL's Lagrangian ``alpha' * cql_alpha * (gap - cql_target_action_gap)``
-        per critic, with ``alpha'`` as it was before this step's dual update (:meth:`update_alpha_prime`, made
-        here)."""
-        if self.log_alpha_prime is None or self.alpha_prime_optimizer is None:
+        per critic, with ``alpha'`` (:meth:`alpha_prime`, detached) as it is before this step's dual update
+        (:meth:`update_alpha_prime`, which :meth:`train` makes after it)."""
+        if self.log_alpha_prime is None:
             return sum(self.cql_alpha * gap for gap in gaps)
-        alpha_prime = self.update_alpha_prime(gaps, logs)
+        alpha_prime = self.alpha_prime().detach()
         return sum(alpha_prime * self.cql_alpha * (gap - self.cql_target_action_gap) for gap in gaps)
 
-    def update_alpha_prime(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> th.Tensor:
-        """One dual step on the Lagrange multiplier ``alpha' = clamp(exp(log_alpha_prime), 0, 1e6)``: Adam on
-        ``-0.5 * sum(alpha' * cql_alpha * (gap - cql_target_action_gap))`` over the critics (the gaps detached), so
-        ``alpha'`` grows while the gaps exceed the target and shrinks below it, as tinkoff-ai/CORL's. Returns
-        ``alpha'`` before the step, detached. Logs ``train/cql_alpha_prime`` and ``train/cql_alpha_prime_loss``."""
+    def update_alpha_prime(self, gaps: list[th.Tensor], logs: dict[str, list[float]]) -> None:
+        """One dual step on the Lagrange multiplier (:meth:`alpha_prime`): Adam on ``-0.5 * sum(alpha' * cql_alpha *
+        (gap - cql_target_action_gap))`` over the critics (the gaps detached), so ``alpha'`` grows while the gaps
+        exceed the target and shrinks below it, as tinkoff-ai/CORL's. Logs ``train/cql_alpha_prime`` (before the
+        step) and ``train/cql_alpha_prime_loss``."""
         assert self.log_alpha_prime is not None and self.alpha_prime_optimizer is not None
-        alpha_prime = self.log_alpha_prime.exp().clamp(0.0, MAX_ALPHA_PRIME)
+        alpha_prime = self.alpha_prime()
         excess = [self.cql_alpha * (gap.detach() - self.cql_target_action_gap) for gap in gaps]
         alpha_prime_loss = -0.5 * sum(alpha_prime * term for term in excess)
         self.alpha_prime_optimizer.zero_grad()
@@ -525,7 +570,6 @@ class CQL(OfflineSAC):
         self.alpha_prime_optimizer.step()
         _append(logs, "train/cql_alpha_prime", alpha_prime.item())
         _append(logs, "train/cql_alpha_prime_loss", alpha_prime_loss.item())
-        return alpha_prime.detach()
 
     def check_critic_loss(self, critic_loss: th.Tensor) -> float:
         """The critic loss as a number; :class:`TrainingDivergedError` if it is NaN or infinite."""
