@@ -60,9 +60,9 @@ class CQL(OfflineSAC):
     ``n_steps`` (SB3's n-step returns): the TD target bootstraps after up to ``n_steps`` steps of the data's episode
     with the samples' ``discounts``, as SAC's (the critics' rewards summed over those steps, :meth:`critic_rewards`).
 
-    Defaults follow the thesis's Table A.1 where it gives a value (batch 352, critic learning rate 3e-4, actor
-    learning rate 3e-5, tau 5e-3, 10 sampled actions) and the reference implementations elsewhere (``cql_alpha`` 10,
-    CORL's). A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``,
+    Defaults are the reference implementation's (tinkoff-ai/CORL's ``cql.py``: batch 256, critic learning rate 3e-4,
+    actor learning rate 3e-5, tau 5e-3, ``cql_alpha`` 10, 10 sampled actions, a learned entropy coefficient, no
+    entropy in the backup, no warm start); the thesis's grasping settings are in ``hyperparams/cql.yml``. A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``,
     ``batch_size`` 0, ..., also given to :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its
     value; so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an action outside [-1, 1]
     (the scaled action space SB3's buffers hold). ``save`` and ``save_replay_buffer`` leave a file whole or none.
@@ -179,7 +179,7 @@ class CQL(OfflineSAC):
         learning_rate: float | Schedule = 3e-4,
         actor_learning_rate: float | Schedule | None = 3e-5,
         buffer_size: int = 2_000_000,
-        batch_size: int = 352,
+        batch_size: int = 256,
         tau: float = 0.005,
         gamma: float = 0.99,
         ent_coef: str | float = "auto",
