@@ -14,9 +14,9 @@ class ZooInternal(NamedTuple):
     """A part of RL-Zoo3 (or SB3) the plugin relies on that a new version could change without notice.
 
     :param kind: ``"method"``: an ``ExperimentManager`` method the plugin wraps, ``uses`` the parameters it binds by
-        name; ``"attribute"``: an attribute the plugin reads or sets, ``uses`` what of it; ``"option"``: an option
-        of ``rl_zoo3.train``, ``uses`` its default and the ``ExperimentManager`` attribute it sets (for ours also the
-        config key that replaces it); ``"behaviour"``: something the zoo's or SB3's code does that the plugin builds on.
+        name; ``"attribute"``: one it reads or sets, ``uses`` what of it; ``"option"``: an option of ``rl_zoo3.train``,
+        ``uses`` its default and the ``ExperimentManager`` attribute (and config key) it sets; ``"behaviour"``:
+        something the zoo's or SB3's code does that the plugin builds on.
     :param name: where it is.
     :param uses: what of it the plugin uses.
     :param reason: why the plugin needs it.
@@ -28,8 +28,7 @@ class ZooInternal(NamedTuple):
     reason: str
 
 
-#: Everything of RL-Zoo3 and SB3 the plugin relies on beyond their documented use, each checked against the installed
-#: versions by ``tests/test_zoo_internals.py``. The plugin wraps public methods only and matches no error text.
+#: Everything of RL-Zoo3 and SB3 the plugin relies on beyond their documented use.
 ZOO_INTERNALS: tuple[ZooInternal, ...] = (
     ZooInternal("method", "ExperimentManager.__init__", ("config", "eval_env_kwargs"),
                 "our hyperparams/ file unless --conf-file is given; whether --eval-env-kwargs was given"),
