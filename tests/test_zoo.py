@@ -18,7 +18,7 @@ import yaml
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_cql.common.atomic import saved_model_problem
-from sb3_cql.zoo import plugin
+from sb3_cql.zoo.run_end import run_commands
 
 # Tiny networks and batches: the point is the plumbing, not the learning.
 TINY = ["--hyperparams", "batch_size:64", "policy_kwargs:dict(net_arch=[32, 32])"]
@@ -428,7 +428,7 @@ def test_the_commands_printed_at_the_end_are_quoted_for_the_shell(tmp_path):
     run = tmp_path / "my logs" / "cql" / "Panda-v0_3"
     run.mkdir(parents=True)
     (run / "best_model.zip").touch()
-    evaluate, record = (shlex.split(line.split(": ", 1)[1]) for line in plugin._run_commands("cql", "Panda-v0", run))
+    evaluate, record = (shlex.split(line.split(": ", 1)[1]) for line in run_commands("cql", "Panda-v0", run))
     assert evaluate == ["python", "-m", "sb3_cql.evaluate", str(run / "best_model.zip"), "--algo", "cql", "-n", "100"]
     assert record == ["python", "-m", "rl_zoo3.record_video", "--algo", "cql", "--env", "Panda-v0", "-f",
                       str(tmp_path / "my logs"), "--exp-id", "3", "--load-best", "-n", "700"]  # fmt: skip

@@ -1,4 +1,4 @@
-"""Each RL-Zoo3 and SB3 internal the zoo plugin relies on (``sb3_cql.zoo.plugin.ZOO_INTERNALS``), checked against the
+"""Each RL-Zoo3 and SB3 internal the zoo plugin relies on (``sb3_cql.zoo.internals.ZOO_INTERNALS``), checked against the
 installed versions in seconds, without training: a zoo upgrade that changes one fails here by name."""
 
 import argparse
@@ -21,8 +21,11 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_cql.zoo import plugin
-from sb3_cql.zoo.plugin import CONFIG_OPTIONS, ZOO_INTERNALS, zoo_internal
+from sb3_cql.zoo import checkpoints, eval_freq, manager, plugin, pretrained, run_end
+from sb3_cql.zoo.chunked import CHUNKED_KEY
+from sb3_cql.zoo.eval_freq import CONFIG_OPTIONS
+from sb3_cql.zoo.internals import ZOO_INTERNALS, zoo_internal
+from sb3_cql.zoo.registry import hyperparams_dir
 
 ZOO = f"rl_zoo3 {rl_zoo3.__version__}"
 #: train.py's command line for a CQL run on Panda-v0 in the test's folder.
@@ -93,7 +96,7 @@ def tiny_sac(path: Path, env_id: str = "Pendulum-v1") -> Path:
 def test_each_wrapped_method_is_the_zoos_with_the_parameters_the_plugin_binds():
     methods = {internal.name.removeprefix("ExperimentManager."): internal for internal in of_kind("method")}
     wrapped = {name for name, value in vars(ExperimentManager).items()
-               if getattr(getattr(value, "__code__", None), "co_filename", None) == plugin.__file__}  # fmt: skip
+               if getattr(getattr(value, "__code__", None), "co_filename", None) == manager.__file__}  # fmt: skip
     assert wrapped == set(methods), f"the plugin wraps {sorted(wrapped)}, ZOO_INTERNALS names {sorted(methods)}"
     for name, internal in methods.items():
         original = getattr(ExperimentManager, name).__wrapped__
@@ -101,14 +104,14 @@ def test_each_wrapped_method_is_the_zoos_with_the_parameters_the_plugin_binds():
         parameters = inspect.signature(original).parameters
         for parameter in internal.uses:
             assert parameter in parameters, f"{ZOO}: {internal.name} has no parameter {parameter!r}: update the plugin"
-    assert plugin._wrap_problems(ExperimentManager) == []
+    assert manager.wrap_problems(ExperimentManager) == []
 
 
 def test_a_zoo_without_a_wrapped_method_or_parameter_is_left_alone_with_a_warning():
     class Manager:
         def __init__(self, args, algo, env_id, log_folder): ...  # no config, no eval_env_kwargs
 
-    assert plugin._wrap_problems(Manager) == [
+    assert manager.wrap_problems(Manager) == [
         "ExperimentManager.__init__ has no parameter 'config'",
         "ExperimentManager.__init__ has no parameter 'eval_env_kwargs'",
         "no ExperimentManager.read_hyperparameters",
@@ -121,8 +124,21 @@ def test_a_zoo_without_a_wrapped_method_or_parameter_is_left_alone_with_a_warnin
     module = type(sys)("rl_zoo3.exp_manager")
     module.ExperimentManager = Manager
     with pytest.warns(RuntimeWarning, match="sb3-cql's zoo plugin does not fit this rl_zoo3 .*has no parameter 'config'"):
-        plugin._extend_exp_manager(module)
+        manager.extend_exp_manager(module)
     assert Manager.__init__.__module__ == __name__ and not hasattr(Manager.__init__, "__wrapped__")
+
+
+def test_the_names_the_plugin_module_had_stay_importable_from_it():
+    from sb3_cql.zoo import chunked, errors, internals, noise, registry
+
+    homes = {chunked: ["CHUNKED_KEY"], errors: ["INPUT_ERRORS", "PROG", "SCHEDULE_KEYS", "ZOO_KEYS", "zoo_parse_error"],
+             eval_freq: ["CONFIG_OPTIONS", "ZOO_DEFAULT_EVAL_EPISODES", "ZOO_DEFAULT_EVAL_FREQ", "ZOO_DEFAULT_SAVE_FREQ"],
+             internals: ["ZOO_INTERNALS", "ZooInternal", "zoo_internal"], noise: ["PINK_SEQ_LEN"],
+             registry: ["ALGO", "ALGOS", "config_file", "hyperparams_dir"]}  # fmt: skip
+    for module, names in homes.items():
+        for name in names:
+            assert getattr(plugin, name) is getattr(module, name), name
+    assert callable(plugin.extend)
 
 
 def test_the_module_attributes_hold_our_algorithms_and_search_space():
@@ -180,7 +196,7 @@ def test_each_option_has_the_default_the_plugin_knows_and_sets_its_attribute(mon
     dest = internal.name.removeprefix("--").replace("-", "_")
     assert parser.get_default(dest) == default, (
         f"{ZOO}: train.py's {internal.name} defaults to {parser.get_default(dest)!r}, the plugin's ZOO_INTERNALS says "
-        f"{default!r}: update ZOO_DEFAULT_* in sb3_cql/zoo/plugin.py"
+        f"{default!r}: update ZOO_DEFAULT_* in sb3_cql/zoo/eval_freq.py"
     )
     if default is None:  # --env-kwargs: None in args when not given, a dict in the manager when given
         assert made_by_train(monkeypatch, tmp_path, *CQL_RUN).args.env_kwargs is None
@@ -195,9 +211,9 @@ def test_config_options_are_options_of_train_with_an_attribute_and_config_key_of
         internal = zoo_internal(option)
         assert internal.kind == "option" and isinstance(internal.uses[0], int), option
     assert [zoo_internal(option).uses[0] for option in CONFIG_OPTIONS] == [
-        plugin.ZOO_DEFAULT_EVAL_FREQ,
-        plugin.ZOO_DEFAULT_EVAL_EPISODES,
-        plugin.ZOO_DEFAULT_SAVE_FREQ,
+        eval_freq.ZOO_DEFAULT_EVAL_FREQ,
+        eval_freq.ZOO_DEFAULT_EVAL_EPISODES,
+        eval_freq.ZOO_DEFAULT_SAVE_FREQ,
     ]
     with pytest.raises(KeyError, match="'--nothing' is not in ZOO_INTERNALS"):
         zoo_internal("--nothing")
@@ -227,7 +243,7 @@ def test_options_given_are_read_from_the_command_line_as_the_zoos_parser_reads_i
     parsed = vars(parser.parse_args(argv))
     for option in CONFIG_OPTIONS:
         given = parsed[option.removeprefix("--").replace("-", "_")] is not unset
-        assert plugin._given_on_command_line(option, argv) == given, (option, argv)
+        assert eval_freq.given_on_command_line(option, argv) == given, (option, argv)
 
 
 @checks("train.train calls learn, then save_trained_model")
@@ -288,7 +304,7 @@ def test_a_checkpoint_of_the_zoo_keeps_its_transitions_where_the_plugin_looks(mo
     model = SAC("MlpPolicy", "Pendulum-v1", buffer_size=10, learning_starts=10, policy_kwargs={"net_arch": [4]}, device="cpu")
     model.learn(2, callback=checkpoint)
     run = Path(manager.save_path)
-    assert plugin._checkpoint_buffer(run / "rl_model_2_steps.zip") == run / "rl_model_replay_buffer_2_steps.pkl"
+    assert checkpoints.checkpoint_buffer(run / "rl_model_2_steps.zip") == run / "rl_model_replay_buffer_2_steps.pkl"
 
 
 @checks("ExperimentManager._load_pretrained_agent loads replay_buffer.pkl beside the model")
@@ -310,12 +326,12 @@ def test_the_zoo_loads_the_replay_buffer_beside_an_i_model_and_the_plugin_then_l
     manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN, "-i", str(model_path))
     monkeypatch.setitem(exp_manager.ALGOS, "cql", Loaded)
     model = manager._load_pretrained_agent({"policy": "MlpPolicy"}, None)
-    plugin._load_checkpoint_buffer(model, model_path)
+    checkpoints.load_checkpoint_buffer(model, model_path)
     assert loaded == [run / "rl_model_replay_buffer_2_steps.pkl"]  # no replay_buffer.pkl: the checkpoint's
     (run / "replay_buffer.pkl").write_bytes(b"")
     loaded.clear()
     model = manager._load_pretrained_agent({"policy": "MlpPolicy"}, None)
-    plugin._load_checkpoint_buffer(model, model_path)
+    checkpoints.load_checkpoint_buffer(model, model_path)
     assert loaded == [run / "replay_buffer.pkl"]  # the zoo's only
 
 
@@ -347,10 +363,10 @@ def test_the_plugins_check_of_an_i_model_is_what_sb3_raises_when_it_loads_it(tmp
     envs = {"fits": lambda: gym.make("Pendulum-v1"),
             "other actions": lambda: gym.wrappers.RescaleAction(gym.make("Pendulum-v1"), -1.0, 1.0),
             "other observations": lambda: gym.make("MountainCarContinuous-v0")}  # fmt: skip
-    saved = plugin._saved_spaces(str(path))
+    saved = pretrained.saved_spaces(str(path))
     for name, make in envs.items():
         env = DummyVecEnv([make])
-        misfit = plugin._misfit(saved, env)
+        misfit = pretrained.misfit(saved, env)
         if misfit is None:
             SAC.load(path, env=env, device="cpu")
             assert name == "fits"
@@ -358,7 +374,7 @@ def test_the_plugins_check_of_an_i_model_is_what_sb3_raises_when_it_loads_it(tmp
         with pytest.raises(ValueError) as raised:
             SAC.load(path, env=env, device="cpu")
         assert " ".join(str(raised.value).split()) == misfit, name
-    assert plugin._misfit(None, env) is None
+    assert pretrained.misfit(None, env) is None
 
 
 def test_an_i_model_that_does_not_fit_the_training_env_ends_the_run_on_one_line(monkeypatch, tmp_path, capsys):
@@ -377,7 +393,7 @@ def test_the_config_env_kwargs_reach_the_evaluation_env_and_its_keys_the_manager
     manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN, "--eval-episodes", "5")
     hyperparams, saved = manager.read_hyperparameters()
     config = yaml.safe_load(Path(manager.config).read_text())["Panda-v0"]
-    assert manager.config == str(plugin.hyperparams_dir() / "cql.yml")  # no --conf-file: ours
+    assert manager.config == str(hyperparams_dir() / "cql.yml")  # no --conf-file: ours
     assert not {"eval_freq", "n_eval_episodes"} & set(hyperparams) and saved["eval_freq"] == config["eval_freq"]
     assert (manager.eval_freq, manager.n_eval_episodes) == (config["eval_freq"], 5)  # the command line's 5 wins
     ExperimentManager._preprocess_hyperparams(manager, hyperparams)
@@ -390,7 +406,7 @@ def test_the_config_env_kwargs_reach_the_evaluation_env_and_its_keys_the_manager
 
 def test_a_conf_file_of_ours_not_in_the_working_folder_is_our_copy(monkeypatch, tmp_path):
     manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN, "--conf-file", "cql_finetune.yml")
-    assert manager.config == str(plugin.hyperparams_dir() / "cql_finetune.yml")
+    assert manager.config == str(hyperparams_dir() / "cql_finetune.yml")
     (tmp_path / "mine.yml").write_text("Panda-v0: {policy: MlpPolicy, n_timesteps: 1}\n")
     assert made_by_train(monkeypatch, tmp_path, *CQL_RUN, "--conf-file", "mine.yml").config == "mine.yml"
 
@@ -423,7 +439,7 @@ def test_the_run_folder_gives_the_log_folder_and_exp_id_of_the_commands_printed(
     assert Path(manager.save_path) == Path("logs", "cql", "Panda-v0_1")
     Path(manager.save_path).mkdir(parents=True)
     manager = made_by_train(monkeypatch, tmp_path, *CQL_RUN)
-    assert plugin._run_commands("cql", "Panda-v0", Path(manager.save_path))[1].endswith("-f logs --exp-id 2 -n 700")
+    assert run_end.run_commands("cql", "Panda-v0", Path(manager.save_path))[1].endswith("-f logs --exp-id 2 -n 700")
 
 
 @checks("ExperimentManager.setup_experiment uses save_path and params_path first in create_log_folder")
@@ -469,7 +485,7 @@ def test_the_zoos_saves_of_a_model_go_through_its_class_which_the_plugin_makes_a
     assert [type(callback) for callback in manager.callbacks] == [CheckpointCallback, EvalCallback]
     manager.callbacks[0].save_replay_buffer = True
     model = Recording("MlpPolicy", "Pendulum-v1", buffer_size=10, learning_starts=10, policy_kwargs={"net_arch": [4]})
-    plugin._atomic_saves(model)
+    checkpoints.atomic_saves(model)
     assert isinstance(model, Recording) and type(model).__name__ == "Recording" and type(model).saves_atomically
     model.learn(2, callback=manager.callbacks)
     manager.save_trained_model(model)
@@ -530,15 +546,15 @@ def tiny_chunked_cql(path: Path) -> Path:
 
 @checks("ExperimentManager.read_hyperparameters applies --hyperparams before returning")
 def test_a_chunked_i_model_gets_the_configs_chunked_settings_below_the_command_lines(monkeypatch, tmp_path):
-    config = yaml.safe_load((plugin.hyperparams_dir() / "cql_finetune.yml").read_text())["PandaForce-v0"]
+    config = yaml.safe_load((hyperparams_dir() / "cql_finetune.yml").read_text())["PandaForce-v0"]
     chunked, given = tiny_chunked_cql(tmp_path / "chunked"), ["--hyperparams", "gradient_steps:3"]
     manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "-i", str(chunked), *given)
     zoos, _ = ExperimentManager.read_hyperparameters.__wrapped__(manager)  # the zoo's own, before the plugin's part
-    assert zoos["gradient_steps"] == 3 and zoos[plugin.CHUNKED_KEY] == config[plugin.CHUNKED_KEY]
+    assert zoos["gradient_steps"] == 3 and zoos[CHUNKED_KEY] == config[CHUNKED_KEY]
     manager = made_by_train(monkeypatch, tmp_path, *FINETUNE_RUN, "-i", str(chunked), *given)
     hyperparams, saved = manager.read_hyperparameters()
     assert (hyperparams["train_freq"], hyperparams["gradient_steps"]) == (config["chunked"]["train_freq"], 3)
-    assert plugin.CHUNKED_KEY not in hyperparams and plugin.CHUNKED_KEY not in saved
+    assert CHUNKED_KEY not in hyperparams and CHUNKED_KEY not in saved
     assert saved["noise_type"] == "pink" and "noise_type" not in hyperparams  # the zoo knows no pink noise
     assert manager._sb3_cql_noise == ("pink", config["chunked"]["noise_std"], 1)
     assert (manager.eval_freq, manager.save_freq) == (config["chunked"]["eval_freq"], config["chunked"]["save_freq"])
