@@ -184,7 +184,7 @@ def collect_dataset(
 
     The episodes go to a hidden ``.partial`` folder beside the dataset, ``write_every`` at a time, each file written
     whole or not at all; once all are there they are assembled into the dataset, which is renamed into place
-    (:mod:`sb3_cql.data.partial` has the layout). A kill at any instant leaves no dataset under its id, or the
+    (:mod:`sb3_cql.data.store` has the layout). A kill at any instant leaves no dataset under its id, or the
     complete one, and running the same collection again resumes it to the dataset an uninterrupted run gives. A
     partial collection of another spec is kept, and this one refused with a :class:`DatasetError` saying what it
     holds (``overwrite`` replaces it), unless it kept no episode; so is a second collection of the id while one runs.

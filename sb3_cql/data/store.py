@@ -1,5 +1,5 @@
-r"""The datasets on disk: the data package's error, a dataset's files and lock, the recovery and publication of a
-replacement, and the loading of a dataset with errors that name it and say how to make it.
+r"""The datasets on disk: a dataset's files and lock, the recovery and publication of a replacement, and the loading
+of a dataset, with a :class:`DatasetError` that names it and says how to make it.
 
 The files of a dataset being written are laid out so that a kill at any instant loses nothing already kept. Beside a
 dataset's folder ``NAME`` (Minari's, under its namespace), while it is collected or replaced:
