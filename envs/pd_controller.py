@@ -74,6 +74,9 @@ CONTROLLERS = {
 #: Reference controllers, not behaviour policies: the aligned yaw shows what turning the hand can give at best (the
 #: ceiling of the benchmark's scripted rows) and is never a source of training data.
 REFERENCE_CONTROLLERS = ("pid-regrasp-aligned",)
+#: The controllers whose runs are behaviour data (the datasets' policies, with and without noise): all but the
+#: references.
+BEHAVIOUR_CONTROLLERS = tuple(name for name in CONTROLLERS if name not in REFERENCE_CONTROLLERS)
 
 
 def _multiply(first: np.ndarray, second: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ import sys
 __version__ = "0.1.0"
 
 if getattr(sys, "argv", [""])[:1] == ["-m"]:  # `python -m sb3_cql....` importing its packages: Ctrl-C is one line
-    from sb3_cql.interrupts import quiet_command_startup
+    from sb3_cql.processes import quiet_command_startup
 
     quiet_command_startup()
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import inspect
 import itertools
 import os
 import re
@@ -53,86 +52,20 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import envs
 from envs.panda_env import check_keywords
 from envs.pd_controller import closing_angles
-from envs.robot import ACTION_MODES
-from sb3_cql.interrupts import exit_status, run_command
+from sb3_cql.data.spaces import (  # noqa: F401  (describe_space, env_spaces: importable from here as before)
+    check_spaces,
+    default_action_mode,
+    describe_space,
+    env_kwargs_for,
+    env_name,
+    env_spaces,
+)
+from sb3_cql.processes import exit_status, run_command
 
 #: The command's name in its messages.
 PROG = "python -m sb3_cql.evaluate"
 #: The action mode of an env made without ``action_mode``.
-DEFAULT_ACTION_MODE = inspect.signature(envs.PandaGraspEnv).parameters["action_mode"].default
-
-
-def describe_space(space: gym.Space) -> str:
-    """``space``'s repr on one line (numpy wraps long bounds)."""
-    return " ".join(repr(space).split())
-
-
-def check_spaces(policy: Any, env: gym.Env, env_id: str) -> None:
-    """Refuse a policy that was not made for ``env``: one whose ``observation_space`` or ``action_space`` (when it
-    has them, as SB3 models do) is not the env's.
-
-    :param policy: an SB3 model or :class:`envs.PDController` (which has neither space: always accepted).
-    :param env: the env the policy is about to act in.
-    :param env_id: the env's id, for the message.
-    :raises ValueError: naming both spaces.
-    """
-    for name in ("observation_space", "action_space"):
-        space = getattr(policy, name, None)
-        if space is not None and space != getattr(env, name):
-            action_mode = getattr(env.unwrapped, "action_mode", None)
-            made = f"{env_id} (action_mode {action_mode!r})" if name == "action_space" and action_mode else env_id
-            raise ValueError(
-                f"the policy's {name.replace('_', ' ')} {describe_space(space)} is not that of {made}: "
-                f"{describe_space(getattr(env, name))}"
-            )
-
-
-def env_spaces(env_id: str, env_kwargs: dict[str, Any] | None = None) -> tuple[gym.Space, gym.Space]:
-    """The observation and action spaces of ``env_id`` made with ``env_kwargs`` (the env is made and closed)."""
-    env = gym.make(env_id, **(env_kwargs or {}))
-    try:
-        return env.observation_space, env.action_space
-    finally:
-        env.close()
-
-
-def env_kwargs_for(policy: Any, env_id: str, env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``env_kwargs`` with the ``action_mode`` that ``policy`` was trained in: the mode whose action space is the
-    policy's ``action_space``. A policy without ``action_space`` (the PD controllers) gets ``env_kwargs`` unchanged.
-
-    :param policy: an SB3 model or :class:`envs.PDController`.
-    :param env_id: the task.
-    :param env_kwargs: keywords of the env; an ``action_mode`` there must be the policy's.
-    :raises ValueError: when the policy's observation space is not the task's, when ``env_kwargs``'s
-        ``action_mode`` is not the policy's, or when no action mode is.
-    """
-    env_kwargs = dict(env_kwargs or {})
-    action_space = getattr(policy, "action_space", None)
-    if action_space is None:
-        return env_kwargs
-    given = env_kwargs.get("action_mode")
-    if given is not None and given not in ACTION_MODES:
-        raise ValueError(f"action_mode {given!r} is none of {env_id}'s: {', '.join(ACTION_MODES)}")
-    spaces_by_mode = {mode: env_spaces(env_id, {**env_kwargs, "action_mode": mode}) for mode in ACTION_MODES}
-    observation_space = getattr(policy, "observation_space", None)
-    task_observation_space = spaces_by_mode[given or DEFAULT_ACTION_MODE][0]
-    if observation_space is not None and observation_space != task_observation_space:
-        raise ValueError(
-            f"the model's observation space {describe_space(observation_space)} is not that of {env_id}: "
-            f"{describe_space(task_observation_space)} (a model of another task?)"
-        )
-    matching = [mode for mode, (_, space) in spaces_by_mode.items() if space == action_space]
-    if not matching:
-        modes = "; ".join(f"action_mode {mode!r}: {describe_space(space)}" for mode, (_, space) in spaces_by_mode.items())
-        raise ValueError(
-            f"the model's action space {describe_space(action_space)} is that of no action mode of {env_id} ({modes})"
-        )
-    if given is not None and given not in matching:
-        raise ValueError(
-            f"the model's action space {describe_space(action_space)} is that of action_mode {matching[0]!r}, not that "
-            f"of the action_mode {given!r} asked for: {describe_space(spaces_by_mode[given][1])}"
-        )
-    return {**env_kwargs, "action_mode": given or matching[0]}
+DEFAULT_ACTION_MODE = default_action_mode()
 
 
 @dataclasses.dataclass
@@ -162,11 +95,11 @@ def episode_outcomes(
     :param seeds: one seed per episode.
     :param deterministic: use the policy's deterministic actions.
     :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
-    :raises ValueError: for a policy whose spaces are not the env's (see :func:`check_spaces`).
+    :raises ValueError: for a policy whose spaces are not the env's (:func:`~sb3_cql.data.check_spaces`).
     """
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
-        check_spaces(policy, env, env_id)
+        check_spaces(policy, env.observation_space, env.action_space, env_name(env, env_id))
         outcomes = []
         for seed in seeds:
             observation, info = env.reset(seed=int(seed))
@@ -246,7 +179,7 @@ def success_rate(
         return float(np.mean(episode_successes(policy, env_id, seeds, deterministic, env_kwargs)))
     env = gym.make(env_id, **(env_kwargs or {}))
     try:
-        check_spaces(policy, env, env_id)
+        check_spaces(policy, env.observation_space, env.action_space, env_name(env, env_id))
     except ValueError:
         env.close()
         raise

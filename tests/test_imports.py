@@ -1,8 +1,10 @@
 """The algorithms import without the simulator, the zoo or the plotting libraries; the collection loads when a
-standard dataset must be made."""
+standard dataset must be made; the data package's modules import one way, each alone."""
 
+import ast
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -32,3 +34,67 @@ def test_loading_data_imports_minari_but_not_the_simulator():
 def test_the_collection_is_imported_when_it_is_asked_for():
     loaded = loaded_after("from sb3_cql.data import ensure_dataset, standard_collection")
     assert {"pybullet", "envs", "sb3_cql.data.collection"} <= set(loaded)
+
+
+def test_loading_data_and_writing_files_atomically_import_no_torch():
+    code = "import sb3_cql.common.atomic, sb3_cql.protocol.records; from sb3_cql.data import load_dataset, fill_replay_buffer"
+    check = f"{code}; import sys; print([name for name in ('torch', 'stable_baselines3') if name in sys.modules])"
+    result = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, check=True)
+    assert result.stdout.strip().splitlines()[-1] == "[]"
+
+
+# The data package: one role a module, imports running one way ----------------------------------------------------
+
+DATA = Path(__file__).resolve().parents[1] / "sb3_cql" / "data"
+#: The modules of the data package, by name (``sb3_cql.data`` for its ``__init__``).
+DATA_MODULES = {
+    "sb3_cql.data" if path.stem == "__init__" else f"sb3_cql.data.{path.stem}": path for path in sorted(DATA.glob("*.py"))
+}
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every module ``path`` imports, at module level or in a function: ``from A import B`` is ``A.B`` where that is a
+    module of :data:`DATA_MODULES`, ``A`` otherwise (the package imports itself absolutely)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 0, f"{path}: a relative import"
+            for alias in node.names:
+                found.add(f"{node.module}.{alias.name}" if f"{node.module}.{alias.name}" in DATA_MODULES else node.module)
+    return found
+
+
+def test_no_data_module_imports_one_that_imports_it_back():
+    graph = {
+        name: {module for module in imported_modules(path) if module in DATA_MODULES and module != name}
+        for name, path in DATA_MODULES.items()
+    }
+
+    def reaches(start: str, goal: str) -> list[str] | None:
+        stack, seen = [[start]], set()
+        while stack:
+            route = stack.pop()
+            for module in graph[route[-1]]:
+                if module == goal:
+                    return [*route, module]
+                if module not in seen:
+                    seen.add(module)
+                    stack.append([*route, module])
+        return None
+
+    circles = [route for name in graph for route in [reaches(name, name)] if route is not None]
+    assert circles == [], "import circles: " + "; ".join(" -> ".join(route) for route in circles)
+
+
+def test_the_data_package_imports_nothing_of_the_commands():
+    commands = ("sb3_cql.evaluate", "sb3_cql.protocol", "sb3_cql.benchmark", "sb3_cql.zoo")
+    for name, path in DATA_MODULES.items():
+        outside = {module for module in imported_modules(path) if module.startswith(commands)}
+        assert not outside, f"{name} imports {outside}"
+
+
+@pytest.mark.parametrize("module", sorted(DATA_MODULES))
+def test_each_data_module_imports_alone(module):
+    subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True, check=True)

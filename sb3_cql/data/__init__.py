@@ -1,11 +1,27 @@
-"""Behaviour datasets: collection into Minari datasets and bulk loading into SB3's ``ReplayBuffer``.
+"""Behaviour datasets: collection into Minari datasets and bulk loading into SB3's replay buffers.
 
-The collection (which imports the tasks and the simulator) loads on first use of one of its names, so that loading
-a dataset, and the algorithms that do, import no simulator.
+One role a module, each importing only those below it:
+
+- :mod:`~sb3_cql.data.errors`: :class:`DatasetError`, the package's error;
+- :mod:`~sb3_cql.data.ids`: dataset ids and paths, and the behaviour policies' names;
+- :mod:`~sb3_cql.data.store`: a dataset on disk (its files and lock, recovery, publication) and its loading;
+- :mod:`~sb3_cql.data.spaces`: whether a dataset or a model fits an env (:func:`check_spaces`);
+- :mod:`~sb3_cql.data.replay`: datasets into SB3's buffers (:func:`fill_replay_buffer`);
+- :mod:`~sb3_cql.data.selection`: episodes selected by their return;
+- :mod:`~sb3_cql.data.rollouts`: what a dataset is made of, the behaviour policies, one episode;
+- :mod:`~sb3_cql.data.estimates`, :mod:`~sb3_cql.data.assembly` and :mod:`~sb3_cql.data.collection`: a collection's
+  time and disk, its assembly into a Minari dataset, and the collection itself (collect, ensure, mix, resume).
+
+The rollouts and the collection (which import the tasks and the simulator) load on first use of one of their names,
+as do the policy names (read from the tasks), so that loading a dataset, and the algorithms that do, import no
+simulator.
 """
 
-from sb3_cql.data.ids import DEFAULT_NOISE, NAMESPACE, POLICIES, dataset_id, dataset_path
-from sb3_cql.data.replay import DatasetError, check_spaces, fill_replay_buffer, load_dataset
+from sb3_cql.data.errors import DatasetError
+from sb3_cql.data.ids import DEFAULT_NOISE, NAMESPACE, dataset_id, dataset_path
+from sb3_cql.data.replay import fill_replay_buffer
+from sb3_cql.data.spaces import check_spaces
+from sb3_cql.data.store import load_dataset
 
 #: Names of :mod:`sb3_cql.data.collection`, imported when first asked for.
 _COLLECTION = ("CollectionSpec", "collect_dataset", "ensure_dataset", "mix_datasets", "standard_collection")
@@ -16,6 +32,10 @@ def __getattr__(name: str):
         from sb3_cql.data import collection
 
         return getattr(collection, name)
+    if name == "POLICIES":
+        from sb3_cql.data import ids
+
+        return ids.POLICIES
     raise AttributeError(f"module 'sb3_cql.data' has no attribute {name!r}")
 
 

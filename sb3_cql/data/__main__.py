@@ -25,10 +25,12 @@ import gymnasium
 
 import envs
 from sb3_cql.cluster import ClusterError
-from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset, mix_datasets
-from sb3_cql.data.collection import WRITE_EVERY, model_action_mode
+from sb3_cql.data.collection import WRITE_EVERY, collect_dataset, mix_datasets
+from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.ids import POLICIES, dataset_path
-from sb3_cql.interrupts import exit_status, run_command
+from sb3_cql.data.rollouts import CollectionSpec, model_action_mode
+from sb3_cql.data.store import load_dataset
+from sb3_cql.processes import exit_status, run_command
 
 PROG = "python -m sb3_cql.data"
 

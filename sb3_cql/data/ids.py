@@ -1,7 +1,14 @@
-"""Names and places of the datasets: one home for the dataset id scheme."""
+"""Names and places of the datasets: one home for the dataset id scheme, and for the names of the behaviour policies
+that the standard ids are made of.
+
+The policy names come from the PD controllers the tasks register (``envs.pd_controller.BEHAVIOUR_CONTROLLERS``);
+reading them imports the tasks and their simulator, so they are read on first use (:func:`behaviour_policies`, and
+the module's ``POLICIES`` and ``NOISY_POLICIES``): loading a dataset imports no simulator.
+"""
 
 from __future__ import annotations
 
+import functools
 import re
 import shlex
 from pathlib import Path
@@ -9,16 +16,12 @@ from typing import Any
 
 from minari.storage import get_dataset_path
 
+from sb3_cql.data.errors import DatasetError
+
 #: Minari namespace of every dataset this package writes.
 NAMESPACE = "sb3cql"
-#: Behaviour policies that :func:`~sb3_cql.data.collect_dataset` knows by name: the PD controllers
-#: (``envs.CONTROLLERS``: ``pid``, ``pid-regrasp`` that grasps a lost object again, and ``pid-regrasp-yaw`` that
-#: does so with the hand's yaw drawn at random at each grasp attempt), each with Gaussian noise on its arm targets
-#: (``noisy``, ``noisy-regrasp``, ``noisy-regrasp-yaw``), and uniform random actions. Not the reference controllers
-#: (``envs.pd_controller.REFERENCE_CONTROLLERS``): they are evaluated, never imitated.
-POLICIES = ("pid", "noisy", "pid-regrasp", "noisy-regrasp", "pid-regrasp-yaw", "noisy-regrasp-yaw", "random")
-#: The noisy policies and the PD controller under each one's noise.
-NOISY_POLICIES = {"noisy": "pid", "noisy-regrasp": "pid-regrasp", "noisy-regrasp-yaw": "pid-regrasp-yaw"}
+#: The behaviour policy of uniform random actions.
+RANDOM_POLICY = "random"
 #: Standard deviation (rad) of the Gaussian noise the ``noisy`` policy adds to the PD controller's arm targets.
 DEFAULT_NOISE = 0.03
 #: Name of the file describing a collection in progress, in its ``.partial`` folder (to resume only the same one).
@@ -55,8 +58,6 @@ def check_dataset_id(dataset_id: Any) -> None:
     ``[NAMESPACE/]NAME-vVERSION``, whose folder is inside the datasets folder (no empty, ``.`` or ``..`` part)."""
     valid = isinstance(dataset_id, str) and re.fullmatch(r"[\w:.\-/]*[\w:.\-]-v\d+", dataset_id) is not None
     if not valid or any(part in ("", ".", "..") for part in dataset_id.split("/")):
-        from sb3_cql.data.replay import DatasetError
-
         raise DatasetError(f"{dataset_id!r} is not a dataset id: write [NAMESPACE/]NAME-vVERSION, a version at the end and "
                            f"no '..' (e.g. {NAMESPACE}/Panda-v0/pid-v0)")  # fmt: skip
 
@@ -90,7 +91,7 @@ def collect_command(spec: dict[str, Any], dataset_id: str) -> str | None:
     if spec.get("algo") is not None:
         words += ["--algo", spec["algo"]]
     words += ["--episodes", str(spec["n_episodes"]), "--seed", str(spec["seed"])]
-    if spec.get("noise") != (DEFAULT_NOISE if spec["policy"] in NOISY_POLICIES else 0.0):
+    if spec.get("noise") != default_noise(spec["policy"]):
         words += ["--noise", str(spec["noise"])]
     if action_mode != "absolute":
         words += ["--action-mode", action_mode]
@@ -108,10 +109,73 @@ def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int, int] | None:
     ``sb3cql/Panda-v0/pid-2k-v0`` -> ``("Panda-v0", "pid", "absolute", 0, 2000)``,
     ``sb3cql/PandaForce-v0/noisy-regrasp-yaw-delta-1k-v0`` -> ``("PandaForce-v0", "noisy-regrasp-yaw", "delta", 0,
     1000)``."""
-    policies = "|".join(sorted(POLICIES, key=len, reverse=True))  # a name before any that begins it
+    policies = "|".join(sorted(behaviour_policies(), key=len, reverse=True))  # a name before any that begins it
     match = re.fullmatch(rf"{NAMESPACE}/([^/]+)/({policies})(-delta)?(?:-([1-9]\d*)k)?-v(\d+)", dataset_id)
     if match is None:
         return None
     env_id, policy, delta, thousands, version = match.groups()
     episodes = STANDARD_EPISODES if thousands is None else 1000 * int(thousands)
     return env_id, policy, "delta" if delta else "absolute", int(version), episodes
+
+
+def standard_collection_fields(dataset_id: str) -> dict[str, Any] | None:
+    """The fields (as :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them) of the collection a standard id stands
+    for (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0`` with a named policy and a registered task: its episodes, 10,000
+    without ``-<N>k``, from seed 0, the policy's default noise), or ``None`` for any other id
+    (:func:`~sb3_cql.data.standard_collection` makes it a spec)."""
+    parsed = parse_dataset_id(dataset_id)
+    if parsed is None or parsed[3] != 0 or parsed[0] not in _registered_tasks():
+        return None
+    env_id, policy, action_mode, _, episodes = parsed
+    env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
+    return {"env_id": env_id, "policy": policy, "n_episodes": episodes, "seed": 0, "noise": default_noise(policy),
+            "env_kwargs": env_kwargs, "algo": None}  # fmt: skip
+
+
+def default_noise(policy: str) -> float:
+    """The noise (std in rad) of a collection of ``policy`` that gives none: :data:`DEFAULT_NOISE` for the noisy
+    policies, 0 for the others."""
+    return DEFAULT_NOISE if policy in noisy_policies() else 0.0
+
+
+def noisy_policy(controller: str) -> str:
+    """The name of the policy that adds noise to the PD controller ``controller``: ``pid`` -> ``noisy``,
+    ``pid-regrasp`` -> ``noisy-regrasp``."""
+    return "noisy" + controller.removeprefix("pid") if controller.startswith("pid") else f"noisy-{controller}"
+
+
+@functools.cache
+def behaviour_policies() -> tuple[str, ...]:
+    """Behaviour policies that :func:`~sb3_cql.data.collect_dataset` knows by name: the PD controllers the tasks register
+    as behaviour policies (``envs.pd_controller.BEHAVIOUR_CONTROLLERS``: ``pid``, ``pid-regrasp`` that grasps a lost
+    object again, and ``pid-regrasp-yaw`` that does so with the hand's yaw drawn at random at each grasp attempt), each
+    followed by its noisy policy (:func:`noisy_policy`: Gaussian noise on its arm targets), and uniform random actions
+    (:data:`RANDOM_POLICY`). Not the reference controllers (``envs.pd_controller.REFERENCE_CONTROLLERS``): they are
+    evaluated, never imitated."""
+    from envs.pd_controller import BEHAVIOUR_CONTROLLERS  # the tasks and the simulator: see the module's docstring
+
+    return (*(name for controller in BEHAVIOUR_CONTROLLERS for name in (controller, noisy_policy(controller))), RANDOM_POLICY)
+
+
+@functools.cache
+def noisy_policies() -> dict[str, str]:
+    """The noisy policies and the PD controller under each one's noise."""
+    from envs.pd_controller import BEHAVIOUR_CONTROLLERS
+
+    return {noisy_policy(controller): controller for controller in BEHAVIOUR_CONTROLLERS}
+
+
+def _registered_tasks() -> dict[str, Any]:
+    """The task ids the tasks package registers (``envs.ENV_IDS``)."""
+    import envs  # the simulator: see the module's docstring
+
+    return envs.ENV_IDS
+
+
+def __getattr__(name: str) -> Any:
+    # POLICIES and NOISY_POLICIES: the names of behaviour_policies() and noisy_policies(), read on first use.
+    if name == "POLICIES":
+        return behaviour_policies()
+    if name == "NOISY_POLICIES":
+        return noisy_policies()
+    raise AttributeError(f"module 'sb3_cql.data.ids' has no attribute {name!r}")

@@ -1,10 +1,14 @@
-"""Load Minari datasets into SB3's ``ReplayBuffer`` by bulk array assignment, with clear errors for bad data."""
+"""Minari datasets into SB3's replay buffers (``ReplayBuffer``, ``DictReplayBuffer``, ``NStepReplayBuffer``) by bulk
+array assignment, with clear errors for bad data: data that do not fit the env (:func:`~sb3_cql.data.check_spaces`),
+NaN, actions outside the action space.
+
+The store's :func:`~sb3_cql.data.load_dataset`, :func:`~sb3_cql.data.store.damaged_dataset` and
+:class:`~sb3_cql.data.DatasetError`, and :func:`~sb3_cql.data.check_spaces`, are importable from here too, where they
+were before they had modules of their own.
+"""
 
 from __future__ import annotations
 
-import contextlib
-import json
-import shlex
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
@@ -12,7 +16,11 @@ import numpy as np
 from gymnasium import spaces
 from minari import MinariDataset
 
-from sb3_cql.data import ids
+from sb3_cql.data.errors import DatasetError
+from sb3_cql.data.spaces import check_spaces, dataset_name
+from sb3_cql.data.store import damaged_dataset, load_dataset
+
+__all__ = ["DatasetError", "check_box_spaces", "check_spaces", "damaged_dataset", "fill_replay_buffer", "load_dataset"]
 
 if TYPE_CHECKING:  # SB3 (and torch) load only when a buffer is filled: collection workers never need them.
     from stable_baselines3.common.buffers import ReplayBuffer
@@ -22,109 +30,19 @@ if TYPE_CHECKING:  # SB3 (and torch) load only when a buffer is filled: collecti
 LOAD_BATCH_EPISODES = 256
 
 
-class DatasetError(ValueError):
-    """A dataset that is missing, unreadable, or does not fit the environment."""
-
-
-def load_dataset(dataset_id: str) -> MinariDataset:
-    """Open the Minari dataset ``dataset_id``, with an error naming it (and how to make it) if it is missing,
-    partial, damaged or unreadable. A replacement of it that a kill cut short is completed first
-    (:meth:`~sb3_cql.data.partial.DatasetFiles.recover`), unless a collection of it is running."""
-    from sb3_cql.data.partial import DatasetFiles
-
-    files = DatasetFiles(dataset_id)
-    if (files.publishing.exists() or files.old.exists()) and not files.is_locked():
-        with contextlib.suppress(DatasetError, OSError), files.locked():
-            files.recover()
-    path = ids.dataset_path(dataset_id)
-    if not ids.dataset_exists(dataset_id):
-        if path.exists():
-            raise DatasetError(damaged_dataset(dataset_id))
-        partial = _partial_collection(files)
-        if partial is not None:
-            raise DatasetError(partial)
-        raise DatasetError(
-            f"dataset {dataset_id} not found at {path} (MINARI_DATASETS_PATH or ~/.minari/datasets); "
-            f"collect it with: python -m sb3_cql.data collect --dataset-id {shlex.quote(dataset_id)} ..."
-        )
-    try:
-        dataset = MinariDataset(path / "data")
-        empty = dataset.total_episodes == 0
-        if not empty:
-            list(dataset.storage.get_episode_metadata([0, dataset.total_episodes - 1]))  # opens the data file
-    except Exception as error:
-        raise DatasetError(f"dataset {dataset_id} at {path} is truncated or corrupt: {error}") from error
-    if empty:
-        raise DatasetError(f"dataset {dataset_id} at {path} holds no episodes: nothing to train on; collect it again "
-                           "(python -m sb3_cql.data collect ... --overwrite)")  # fmt: skip
-    return dataset
-
-
-def damaged_dataset(dataset_id: str) -> str:
-    """What to say of a dataset folder without its ``data/metadata.json`` (Minari writes it last: without it, the
-    folder cannot be read), and how to collect it again."""
-    from sb3_cql.data.collection import standard_collection
-
-    path = ids.dataset_path(dataset_id)
-    spec = standard_collection(dataset_id)
-    command = ids.collect_command(json.loads(spec.to_json()), dataset_id) if spec is not None else None
-    again = command or f"python -m sb3_cql.data collect --dataset-id {shlex.quote(dataset_id)} ..."
-    return (
-        f"dataset {dataset_id} at {path} is damaged: it has no data/metadata.json and cannot be read; replace it with: "
-        f"{again} --overwrite"
-    )
-
-
-def _partial_collection(files: Any) -> str | None:
-    """What to say of an interrupted collection of ``files``'s dataset, or ``None`` if there is none."""
-    from sb3_cql.data.partial import partial_summary
-
-    summary = partial_summary(files)
-    if summary is None:
-        return None
-    spec, collected = summary
-    command = ids.collect_command(spec, files.dataset_id)
-    resume = f"resume it with: {command}" if command else "the same collection (collect_dataset) resumes it"
-    if files.storage_before_episode_files.is_dir():  # written before episode files: its metadata has a count
-        with contextlib.suppress(OSError, ValueError, KeyError):
-            metadata = json.loads((files.storage_before_episode_files / "metadata.json").read_text())
-            collected += int(metadata["total_episodes"])
-    return (
-        f"dataset {files.dataset_id} is partial: its collection was interrupted after {collected} of "
-        f"{spec['n_episodes']} episodes (kept in {files.partial}); {resume}"
-    )
-
-
-def _name(dataset: MinariDataset) -> str:
-    """The dataset's id, or its folder for a dataset without one: the name every error gives."""
-    return dataset.spec.dataset_id if dataset.spec else str(dataset.storage.data_path)
-
-
-def check_spaces(dataset: MinariDataset, observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    """Raise :class:`DatasetError` unless the dataset's spaces have the env's shapes and bounds: Box spaces, or for
-    observations a Dict of Box spaces with the env's keys."""
-    name = _name(dataset)
-    pairs = [("observation", dataset.observation_space, observation_space), ("action", dataset.action_space, action_space)]
-    if isinstance(dataset.observation_space, spaces.Dict) and isinstance(observation_space, spaces.Dict):
-        if set(dataset.observation_space.spaces) != set(observation_space.spaces):
-            raise DatasetError(
-                f"dataset {name}: observation keys {sorted(dataset.observation_space.spaces)} do not match the env's "
-                f"{sorted(observation_space.spaces)}"
-            )
-        pairs[:1] = [(f"observation {key!r}", dataset.observation_space[key], observation_space[key])
-                     for key in observation_space.spaces]  # fmt: skip
+def check_box_spaces(dataset: MinariDataset, observation_space: spaces.Space, action_space: spaces.Space) -> None:
+    """A :class:`DatasetError` unless the dataset's and the env's spaces are what a buffer holds: Box spaces, or for
+    observations Dict spaces of them."""
+    pairs = (("observation", dataset.observation_space, observation_space), ("action", dataset.action_space, action_space))
     for what, data_space, env_space in pairs:
-        if not isinstance(data_space, spaces.Box) or not isinstance(env_space, spaces.Box):
+        if what == "observation" and isinstance(data_space, spaces.Dict) and isinstance(env_space, spaces.Dict):
+            held = [*data_space.spaces.values(), *env_space.spaces.values()]
+        else:
+            held = [data_space, env_space]
+        if not all(isinstance(space, spaces.Box) for space in held):
             raise DatasetError(
-                f"dataset {name}: only Box spaces (and Dict observations of them) are supported, got {data_space} and "
-                f"{env_space}"
-            )
-        if data_space.shape != env_space.shape:
-            raise DatasetError(f"dataset {name}: {what} shape {data_space.shape} does not match the env's {env_space.shape}")
-        if not (np.allclose(data_space.low, env_space.low) and np.allclose(data_space.high, env_space.high)):
-            raise DatasetError(
-                f"dataset {name}: {what} bounds do not match the env's (another action mode or task?): "
-                f"dataset {data_space}, env {env_space}"
+                f"dataset {dataset_name(dataset)}: only Box spaces (and Dict observations of them) are supported, got "
+                f"{data_space} and {env_space}"
             )
 
 
@@ -168,8 +86,9 @@ def fill_replay_buffer(
         dataset = load_dataset(dataset)
     if buffer_observation_space is not None and _shapes(dataset.observation_space) == _shapes(buffer_observation_space):
         observation_space = buffer_observation_space  # images held as the policy sees them (channel-first): as they are
+    check_box_spaces(dataset, observation_space, action_space)
     check_spaces(dataset, observation_space, action_space)
-    name = _name(dataset)
+    name = dataset_name(dataset)
     # The storage's own count: MinariDataset.total_steps reads every episode's attributes.
     n_transitions = dataset.storage.total_steps if len(dataset) == dataset.storage.total_episodes else dataset.total_steps
     if n_transitions == 0:

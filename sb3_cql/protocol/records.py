@@ -19,10 +19,11 @@ import json
 import os
 import platform
 import subprocess
-import tempfile
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
+from sb3_cql.common.atomic import write_atomically
 
 #: The row of an algorithm's runs fine-tuned online on a task: its best offline model, trained on with interaction.
 FINETUNE_ROW = "{algo}-finetune-{task}"
@@ -35,27 +36,9 @@ def finetune_parts(row: str) -> tuple[str, str | None]:
 
 
 def write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename: a reader never sees,
+    """Write ``text`` to ``path`` atomically (:func:`sb3_cql.common.atomic.write_atomically`): a reader never sees,
     and a killed writer never leaves, half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(descriptor, 0o666 & ~_umask())  # mkstemp's 0600: a record is read as any file the user writes
-        with os.fdopen(descriptor, "w") as file:
-            file.write(text)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-
-
-def _umask() -> int:
-    """The process's umask (read by setting it and back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+    write_atomically(path, text)
 
 
 def write_json(path: Path, data: Any) -> None:

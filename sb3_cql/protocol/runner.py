@@ -7,26 +7,23 @@ from __future__ import annotations
 
 import fcntl
 import inspect
-import multiprocessing
 import os
 import shlex
-import signal
 import subprocess
 import sys
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 import envs
-from sb3_cql.interrupts import die_with_parent
+from sb3_cql.processes import WorkerPool, child_command
 from sb3_cql.protocol.records import FINETUNE_ROW, ResultsFolder, finetune_parts, read_json, system_info, write_json
 from sb3_cql.protocol.runs import Run
 
@@ -230,27 +227,6 @@ def _check_dataset(dataset_id: str | None) -> None:
         raise ProtocolError(str(error)) from None
 
 
-def _die_with_parent(parent: int) -> None:
-    """A killed runner takes its workers, and a killed worker its zoo run, along (the next run resumes from the
-    checkpoints) instead of leaving them to write into the results beside a new runner
-    (:func:`sb3_cql.interrupts.die_with_parent`)."""
-    die_with_parent(parent)
-
-
-def _start_worker(parent: int) -> None:
-    """A worker process dies with the runner (:func:`_die_with_parent`) and leaves Ctrl-C to it: the runner ends the
-    workers itself, at once, and says what was kept (a worker would print a traceback)."""
-    _die_with_parent(parent)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _start_zoo_run(parent: int) -> None:
-    """A zoo process dies with its worker (:func:`_die_with_parent`) and takes Ctrl-C as the zoo does (saving the model
-    at that step), which its worker ignores (an ignored signal stays ignored across ``exec``)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    _die_with_parent(parent)
-
-
 #: Environment variables of the command that the protocol's Ray tasks see too (a node's own otherwise).
 RAY_TASK_ENV = ("MINARI_DATASETS_PATH", "MPLBACKEND")
 
@@ -258,11 +234,13 @@ RAY_TASK_ENV = ("MINARI_DATASETS_PATH", "MPLBACKEND")
 @contextmanager
 def _units_executor(protocol: Protocol) -> Iterator[tuple[Any, int]]:
     """Where the protocol's units run, and how many at a time: ``protocol.workers`` local processes
-    (:func:`_workers`), or with ``protocol.ray_address`` Ray tasks of one CPU each (their zoo runs get one torch
-    thread), as many at a time as the cluster has CPUs unless ``workers`` says otherwise; a task whose worker or node
-    died is run again (3 times), continuing from its checkpoints."""
+    (:class:`~sb3_cql.processes.WorkerPool`: spawned clean, dying with the runner and leaving Ctrl-C to it, which ends
+    them at once, each taking its zoo run along: what is recorded stays, for the same command to continue), or with
+    ``protocol.ray_address`` Ray tasks of one CPU each (their zoo runs get one torch thread), as many at a time as the
+    cluster has CPUs unless ``workers`` says otherwise; a task whose worker or node died is run again (3 times),
+    continuing from its checkpoints."""
     if protocol.ray_address is None:
-        with _workers(protocol.workers) as pool:
+        with WorkerPool(protocol.workers) as pool:
             yield pool, protocol.workers
         return
     from sb3_cql.cluster import ClusterError, RayExecutor
@@ -274,21 +252,6 @@ def _units_executor(protocol: Protocol) -> Iterator[tuple[Any, int]]:
         raise ProtocolError(str(error)) from None
     with executor:
         yield executor, protocol.workers if protocol.workers > 1 else executor.cpus
-
-
-@contextmanager
-def _workers(count: int) -> Iterator[ProcessPoolExecutor]:
-    """``count`` worker processes (spawned clean: no torch state, no inherited locks), waited for when the block ends;
-    on Ctrl-C (``KeyboardInterrupt``) they are ended at once instead, each taking its zoo run along, not waited for
-    through the units they run (what is recorded stays, for the same command to continue)."""
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(count, context, initializer=_start_worker, initargs=(os.getpid(),)) as pool:
-        try:
-            yield pool
-        except KeyboardInterrupt:
-            for worker in multiprocessing.active_children():
-                worker.terminate()
-            raise
 
 
 def _seconds(seconds: float) -> str:
@@ -361,8 +324,9 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: s
         with open(log, "a") as file:
             file.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} segment {segment}: {shlex.join(command)}\n")
             file.flush()
+            # The zoo takes Ctrl-C as it does (saving the model at that step), and dies with its worker.
             returncode = subprocess.run(command, stdout=file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                        preexec_fn=partial(_start_zoo_run, os.getpid())).returncode  # fmt: skip
+                                        preexec_fn=child_command()).returncode  # fmt: skip
         times[segment] = [start, time.time()]
         write_json(times_path, times)
         if returncode != 0:
