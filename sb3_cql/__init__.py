@@ -11,12 +11,16 @@ if getattr(sys, "argv", [""])[:1] == ["-m"]:  # `python -m sb3_cql....` importin
 
 
 def __getattr__(name: str):
-    # CQL, IQL and BC load torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
+    # CQL, CalQL, IQL and BC load torch and SB3: import it on first use, so that `python -m sb3_cql.data` and the dataset
     # collection workers start without them.
     if name == "CQL":
         from sb3_cql.cql import CQL
 
         return CQL
+    if name == "CalQL":
+        from sb3_cql.cql import CalQL
+
+        return CalQL
     if name == "BC":
         from sb3_cql.bc import BC
 
@@ -28,4 +32,4 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'sb3_cql' has no attribute {name!r}")
 
 
-__all__ = ["BC", "CQL", "IQL", "__version__"]
+__all__ = ["BC", "CQL", "CalQL", "IQL", "__version__"]

@@ -7,12 +7,11 @@ import contextlib
 import shlex
 import signal
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from sb3_cql.interrupts import INTERRUPTED_STATUS
+from sb3_cql.processes import INTERRUPTED_STATUS, interrupts_noted
 
 
 def run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
@@ -30,20 +29,13 @@ def run_commands(algo: str, env_id: str, save_path: Path) -> list[str]:
 @contextlib.contextmanager
 def ctrl_c_noted(manager: Any) -> Iterator[None]:
     """Note a Ctrl-C during the block in ``manager._sb3_cql_interrupted`` (the zoo's ``learn`` returns after one), to
-    say after the zoo's save that the run was cut short."""
+    say after the zoo's save that the run was cut short; Ctrl-C still raises ``KeyboardInterrupt`` for the zoo."""
     manager._sb3_cql_interrupted = False
-
-    def note_and_interrupt(signum: int, frame: Any) -> None:
-        manager._sb3_cql_interrupted = True
-        raise KeyboardInterrupt
-
-    main_thread = threading.current_thread() is threading.main_thread()  # only the main thread can set handlers
-    previous = signal.signal(signal.SIGINT, note_and_interrupt) if main_thread else None
-    try:
-        yield
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
+    with interrupts_noted() as noted:
+        try:
+            yield
+        finally:
+            manager._sb3_cql_interrupted = noted() == signal.SIGINT
 
 
 def interrupted_before_training(removed: Path | None, kept: str) -> None:
