@@ -395,7 +395,7 @@ def _evaluate(
                 "episodes": [dataclasses.asdict(outcome) for outcome in outcomes],
             }
         if args.output is not None and not unwritable:
-            from sb3_cql.protocol.records import write_json
+            from sb3_cql.files import write_json
 
             record = {"model": args.model, "algo": args.algo, "deterministic": not args.stochastic, "tasks": tasks}
             try:

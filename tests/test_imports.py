@@ -98,3 +98,42 @@ def test_the_data_package_imports_nothing_of_the_commands():
 @pytest.mark.parametrize("module", sorted(DATA_MODULES))
 def test_each_data_module_imports_alone(module):
     subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True, check=True)
+
+
+# The package's parts: each imports only the parts below it ----------------------------------------------------------
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The package's parts from the bottom up (docs/development.md, *Layout*): each imports only parts of a lower layer.
+LAYERS = [
+    {"sb3_cql.files", "sb3_cql.processes", "sb3_cql.cluster"},
+    {"envs"},
+    {"sb3_cql.data"},
+    {"sb3_cql.common"},
+    {"sb3_cql.cql", "sb3_cql.iql", "sb3_cql.bc", "sb3_cql.callbacks"},
+    {"sb3_cql.evaluate", "sb3_cql.zoo"},
+    {"sb3_cql.protocol"},
+    {"sb3_cql", "sb3_cql.interrupts", "sb3_cql.benchmark"},  # the package's door, and former names kept importable
+]
+
+
+def part_of(module: str) -> str:
+    """The part of the package ``module`` belongs to: ``envs``, ``sb3_cql`` (its ``__init__``) or ``sb3_cql.X``."""
+    words = module.split(".")
+    return "envs" if words[0] == "envs" else ".".join(words[:2])
+
+
+def test_each_part_of_the_package_imports_only_the_parts_below_it():
+    layer = {part: level for level, parts in enumerate(LAYERS) for part in parts}
+    files = [*ROOT.joinpath("sb3_cql").rglob("*.py"), *ROOT.joinpath("envs").rglob("*.py")]
+    upward = []
+    for path in files:
+        relative = path.relative_to(ROOT).with_suffix("")
+        source = part_of(".".join(relative.parts[:-1] if relative.name == "__init__" else relative.parts))
+        assert source in layer, f"{path}: a part of the package not in LAYERS"
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [alias.name for alias in node.names] if isinstance(node, ast.Import) else []
+            names += [node.module] if isinstance(node, ast.ImportFrom) and node.module else []
+            for target in {part_of(name) for name in names if name.split(".")[0] in ("sb3_cql", "envs")}:
+                if target != source and target != "sb3_cql" and layer[target] >= layer[source]:
+                    upward.append(f"{relative} imports {target}")
+    assert upward == [], "imports against the layers: " + "; ".join(upward)

@@ -1,16 +1,12 @@
-"""Files that are whole or absent: the package's one atomic write. A file is written under a temporary name beside
-its own, flushed to disk, renamed over it, and the rename flushed to disk too, so that a kill, an error or a power
-cut at any instant leaves the old file or the new one, whole. The datasets' files (:mod:`sb3_cql.data.store`), the
-protocol's records (:mod:`sb3_cql.protocol.records`) and model and replay-buffer saves (SB3 writes a save in place, so
-that a kill during it would leave a truncated ``.zip`` no load opens) are all written through :func:`replace_atomically`.
+"""Model and replay-buffer saves that are whole or absent: SB3 writes a save in place, so that a kill during it would
+leave a truncated ``.zip`` no load opens; here it goes through the package's one atomic write,
+:func:`sb3_cql.files.replace_atomically` (whose names this module re-exports).
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
-import secrets
 import warnings
 import zipfile
 import zlib
@@ -18,61 +14,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from sb3_cql.files import replace_atomically, sync_folder, temporary_path, write_atomically
 
-def temporary_path(path: Path) -> Path:
-    """The temporary name a write of ``path`` goes to: hidden, beside it, for this write alone (two processes may write
-    one path), and ending in ``.tmp``: SB3 adds no suffix to it, and nothing that looks for models (``*.zip``) or episode
-    files takes one that a kill left behind."""
-    return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
-
-
-def sync_folder(folder: Path) -> None:
-    """Flush a folder's entries (a rename in it) to disk, where the platform can."""
-    with contextlib.suppress(OSError):
-        descriptor = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(descriptor)
-        finally:
-            os.close(descriptor)
-
-
-def replace_atomically(
-    path: str | os.PathLike, write: Callable[[Path], Any], before_rename: Callable[[], Any] | None = None
-) -> None:
-    """Make ``path`` the file that ``write(temporary)`` writes, whole or not at all: ``write`` writes a temporary file
-    in the same folder (:func:`temporary_path`; missing folders are made), which is flushed to disk, renamed over
-    ``path``, and the folder flushed. Whatever stops it (an error, Ctrl-C), the temporary file is removed.
-
-    :param path: the file.
-    :param write: writes the file at the path it is given (SB3's ``save`` does, as does :func:`write_atomically`).
-    :param before_rename: called once the temporary file is on disk, before the rename (a test's crash point).
-    """
-    final = Path(path)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    temporary = temporary_path(final)
-    try:
-        write(temporary)
-        with open(temporary, "rb") as file:
-            os.fsync(file.fileno())
-        if before_rename is not None:
-            before_rename()
-        os.replace(temporary, final)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    sync_folder(final.parent)
-
-
-def write_atomically(path: str | os.PathLike, data: bytes | str) -> None:
-    """Write ``data`` (text as UTF-8) to ``path`` through :func:`replace_atomically`: a reader never sees, and a killed
-    writer never leaves, half a file. The file's permissions are those of any file the user writes (the umask's)."""
-    content = data.encode() if isinstance(data, str) else data
-
-    def write(temporary: Path) -> None:
-        with open(temporary, "xb") as file:
-            file.write(content)
-
-    replace_atomically(path, write)
+__all__ = ["replace_atomically", "save_atomically", "saved_model_problem", "sb3_save_path", "sync_folder",
+           "temporary_path", "with_atomic_saves", "write_atomically"]  # fmt: skip
 
 
 def sb3_save_path(path: str | os.PathLike, suffix: str) -> Path:

@@ -35,7 +35,7 @@ from sb3_cql.common.buffers import (
     with_n_step_returns,
 )
 from sb3_cql.common.policies import FROM_SAC, CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten, OfflinePolicy
-from sb3_cql.interrupts import interrupts_deferred
+from sb3_cql.processes import interrupts_deferred
 
 if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard dataset's collection: neither on import.
     from minari import MinariDataset

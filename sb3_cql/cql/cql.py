@@ -62,8 +62,9 @@ class CQL(OfflineSAC):
 
     Defaults are the reference implementation's (tinkoff-ai/CORL's ``cql.py``: batch 256, critic learning rate 3e-4,
     actor learning rate 3e-5, tau 5e-3, ``cql_alpha`` 10, 10 sampled actions, a learned entropy coefficient, no
-    entropy in the backup, no warm start); the thesis's grasping settings are in ``hyperparams/cql.yml``. A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``,
-    ``batch_size`` 0, ..., also given to :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its
+    entropy in the backup, no warm start); the thesis's grasping settings are in ``hyperparams/cql.yml``.
+    A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``, ``batch_size`` 0, ...,
+    also given to :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its
     value; so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an action outside [-1, 1]
     (the scaled action space SB3's buffers hold). ``save`` and ``save_replay_buffer`` leave a file whole or none.
 

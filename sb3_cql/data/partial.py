@@ -1,7 +1,6 @@
 """The files of a dataset being written: the names of :mod:`sb3_cql.data.store`, their home, under this module's
 older path."""
 
-from sb3_cql.common.atomic import write_atomically
 from sb3_cql.data.store import (
     CRASH_AT_ENV,
     CRASH_POINTS,
@@ -12,6 +11,7 @@ from sb3_cql.data.store import (
     crash_point,
     partial_summary,
 )
+from sb3_cql.files import write_atomically
 
 __all__ = [
     "CRASH_AT_ENV",

@@ -42,9 +42,9 @@ from minari.data_collector import EpisodeBuffer
 from minari.dataset.minari_dataset import parse_dataset_id
 from minari.namespace import create_namespace, list_local_namespaces
 
-from sb3_cql.common.atomic import replace_atomically, sync_folder, write_atomically
 from sb3_cql.data import ids
 from sb3_cql.data.errors import DatasetError
+from sb3_cql.files import replace_atomically, sync_folder, write_atomically
 
 #: The environment variable that names the crash point to kill the process at.
 CRASH_AT_ENV = "SB3_CQL_CRASH_AT"
@@ -67,7 +67,7 @@ def crash_point(name: str) -> None:
 
 
 def _write_episode_file(path: Path, data: bytes) -> None:
-    """Write an episode file atomically (:func:`~sb3_cql.common.atomic.replace_atomically`), :data:`WRITE_BLOCK` bytes
+    """Write an episode file atomically (:func:`~sb3_cql.files.replace_atomically`), :data:`WRITE_BLOCK` bytes
     at a time, with the crash points ``episodes-write`` (after the first block) and ``episodes-written`` (before the
     rename)."""
 

@@ -24,7 +24,7 @@ import shlex
 import sys
 
 import envs
-from sb3_cql.interrupts import exit_status, run_command
+from sb3_cql.processes import exit_status, run_command
 from sb3_cql.protocol.records import ResultsFolder, read_json
 from sb3_cql.protocol.runner import (
     DEFAULT_ALGOS,

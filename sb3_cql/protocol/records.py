@@ -23,7 +23,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from sb3_cql.common.atomic import write_atomically
+from sb3_cql.files import write_atomically as write_text  # noqa: F401  (the records' writes: the package's one)
+from sb3_cql.files import write_json  # noqa: F401
 
 #: The row of an algorithm's runs fine-tuned online on a task: its best offline model, trained on with interaction.
 FINETUNE_ROW = "{algo}-finetune-{task}"
@@ -33,18 +34,6 @@ def finetune_parts(row: str) -> tuple[str, str | None]:
     """``(algorithm, task)`` of a fine-tuned row (:data:`FINETUNE_ROW`), ``(row, None)`` of any other."""
     algo, separator, task = row.partition("-finetune-")
     return (algo, task) if separator else (row, None)
-
-
-def write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (:func:`sb3_cql.common.atomic.write_atomically`): a reader never sees,
-    and a killed writer never leaves, half a file."""
-    write_atomically(path, text)
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Write ``data`` as JSON to ``path`` atomically (:func:`write_text`); NaN and infinities are refused
-    (``ValueError``): they are not JSON."""
-    write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def read_json(path: Path) -> Any | None:

@@ -1,0 +1,79 @@
+"""Files that are whole or absent: the package's one atomic write. A file is written under a temporary name beside
+its own, flushed to disk, renamed over it, and the rename flushed to disk too, so that a kill, an error or a power
+cut at any instant leaves the old file or the new one, whole. The datasets' files (:mod:`sb3_cql.data.store`), the
+protocol's records (:mod:`sb3_cql.protocol.records`), an evaluation's ``--output`` and model and replay-buffer saves
+(:mod:`sb3_cql.common.atomic`) are all written through :func:`replace_atomically`. Standard library only: it is
+imported by the data package and the commands before torch.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import secrets
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+
+def temporary_path(path: Path) -> Path:
+    """The temporary name a write of ``path`` goes to: hidden, beside it, for this write alone (two processes may write
+    one path), and ending in ``.tmp``: SB3 adds no suffix to it, and nothing that looks for models (``*.zip``) or episode
+    files takes one that a kill left behind."""
+    return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+
+
+def sync_folder(folder: Path) -> None:
+    """Flush a folder's entries (a rename in it) to disk, where the platform can."""
+    with contextlib.suppress(OSError):
+        descriptor = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
+
+
+def replace_atomically(
+    path: str | os.PathLike, write: Callable[[Path], Any], before_rename: Callable[[], Any] | None = None
+) -> None:
+    """Make ``path`` the file that ``write(temporary)`` writes, whole or not at all: ``write`` writes a temporary file
+    in the same folder (:func:`temporary_path`; missing folders are made), which is flushed to disk, renamed over
+    ``path``, and the folder flushed. Whatever stops it (an error, Ctrl-C), the temporary file is removed.
+
+    :param path: the file.
+    :param write: writes the file at the path it is given (SB3's ``save`` does, as does :func:`write_atomically`).
+    :param before_rename: called once the temporary file is on disk, before the rename (a test's crash point).
+    """
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    temporary = temporary_path(final)
+    try:
+        write(temporary)
+        with open(temporary, "rb") as file:
+            os.fsync(file.fileno())
+        if before_rename is not None:
+            before_rename()
+        os.replace(temporary, final)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    sync_folder(final.parent)
+
+
+def write_atomically(path: str | os.PathLike, data: bytes | str) -> None:
+    """Write ``data`` (text as UTF-8) to ``path`` through :func:`replace_atomically`: a reader never sees, and a killed
+    writer never leaves, half a file. The file's permissions are those of any file the user writes (the umask's)."""
+    content = data.encode() if isinstance(data, str) else data
+
+    def write(temporary: Path) -> None:
+        with open(temporary, "xb") as file:
+            file.write(content)
+
+    replace_atomically(path, write)
+
+
+def write_json(path: str | os.PathLike, data: Any) -> None:
+    """Write ``data`` as JSON to ``path`` through :func:`write_atomically`; NaN and infinities are refused
+    (``ValueError``): they are not JSON."""
+    write_atomically(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
