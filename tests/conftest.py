@@ -1,11 +1,35 @@
+import os
 import signal
 from collections.abc import Iterator
+
+# One torch thread a process, the tests' and the commands they start (which inherit it): the suite's networks are
+# tiny, and two threads a process spend more time waiting on each other than computing, several times more when the
+# commands a test starts run beside it on the two cores. A thread count given by the caller is kept.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import gymnasium as gym
 import postgres
 import pytest
 
 import envs
+
+#: The test files that take longest (minutes each: they train and evaluate through the zoo and the protocol's
+#: commands), started first, so that the suite's two processes (``-n 2 --dist loadfile``, pyproject.toml) end together.
+LONGEST_FIRST = ("test_protocol.py", "test_zoo.py", "test_cql.py", "test_cluster.py", "test_data_failures.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {name: position for position, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # a stable sort: each file keeps its own order
+
+
+@pytest.fixture(autouse=True, scope="session")
+def one_torch_thread() -> None:
+    """Torch's threads as ``OMP_NUM_THREADS`` says (torch reads it when it is first imported, which may have been
+    before this file)."""
+    import torch
+
+    torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 
 @pytest.fixture(autouse=True, scope="session")
