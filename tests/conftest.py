@@ -13,9 +13,12 @@ import pytest
 
 import envs
 
-#: The test files that take longest (minutes each: they train and evaluate through the zoo and the protocol's
-#: commands), started first, so that the suite's two processes (``-n 2 --dist loadfile``, pyproject.toml) end together.
-LONGEST_FIRST = ("test_protocol.py", "test_zoo.py", "test_cql.py", "test_cluster.py", "test_data_failures.py")
+#: The test files by how long they take, longest first (the first two minutes each: they train and evaluate through the
+#: zoo and the protocol's commands), so that the suite's two processes (``-n 2 --dist loadfile``, pyproject.toml) end
+#: together; the files not named, which take seconds, come last.
+LONGEST_FIRST = ("test_protocol.py", "test_zoo.py", "test_cql.py", "test_data_failures.py", "test_cluster.py",
+                 "test_data.py", "test_evaluate.py", "test_envs.py", "test_experiments.py", "test_sb3_contracts.py",
+                 "test_imports.py", "test_bad_input.py", "test_docs.py")  # fmt: skip
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

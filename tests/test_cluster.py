@@ -109,6 +109,7 @@ def protocol_root(tmp_path_factory, cluster):
     return root
 
 
+@pytest.mark.slow  # two protocol runs side by side (a minute); the Ray collection test above covers the cluster in CI
 def test_the_protocol_on_ray_records_what_it_records_locally(cluster, protocol_root):
     local = benchmark(["--workers", "2", "--results-dir", "local"], protocol_root)
     on_ray = benchmark(["--ray", cluster.address, "--results-dir", "ray"], protocol_root)
