@@ -2,6 +2,7 @@
 
     python benchmarks/d3rlpy_check.py --d3rlpy-python /path/to/venv/bin/python [--tasks pendulum mountaincar]
         [--seeds 0 1 2] [--steps 10000] [--episodes N] [--eval-episodes 10] [--threads 1] [--output FILE.jsonl]
+        [--libraries sb3-cql d3rlpy]
 
 The data, made here from a seeded script, are the same arrays for both libraries:
 
@@ -174,6 +175,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--eval-episodes", type=int, default=10, help="evaluation episodes per run (default 10)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads of each run (default 1)")
     parser.add_argument("--output", default=None, help="JSON lines of every run (default: none)")
+    parser.add_argument("--libraries", nargs="+", choices=["sb3-cql", "d3rlpy"], default=["sb3-cql", "d3rlpy"],
+                        help="whose runs to make (default both; d3rlpy's need --d3rlpy-python)")  # fmt: skip
     args = parser.parse_args(argv)
     sys.stdout.reconfigure(line_buffering=True)
     th.set_num_threads(args.threads)
@@ -188,8 +191,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             print(f"{task}: data {data_score:.3f} ({len(data['rewards'])} transitions)", flush=True)
             data_path = Path(folder) / f"{task}.npz"
             np.savez(data_path, env_id=TASKS[task], **{k: v for k, v in data.items() if not k.startswith("episode_")})
-            runs = [("sb3-cql", "cql"), ("sb3-cql", "iql"), ("sb3-cql", "bc")]
-            if args.d3rlpy_python:
+            runs = [("sb3-cql", "cql"), ("sb3-cql", "iql"), ("sb3-cql", "bc")] if "sb3-cql" in args.libraries else []
+            if args.d3rlpy_python and "d3rlpy" in args.libraries:
                 runs += [("d3rlpy", "cql"), ("d3rlpy", "iql"), ("d3rlpy", "bc")]
             for library, algorithm in runs:
                 for seed in args.seeds:

@@ -1,9 +1,15 @@
-"""Random rollouts of an env in a replay buffer of its own spaces: the datasets of the algorithms' unit tests."""
+"""Random rollouts of an env in a replay buffer of its own spaces: the datasets of the algorithms' unit tests; and the
+arguments that collect the command-line tests' dataset."""
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
+
+#: ``python -m sb3_cql.data`` arguments that collect 4 episodes as ``sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0``, the
+#: dataset our zoo configs name: the command-line tests' stand-in for the full one.
+TINY_PANDA_COLLECT = ("collect", "--policy", "noisy-regrasp", "--action-mode", "delta", "--episodes", "4",
+                      "--dataset-id", "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0")  # fmt: skip
 
 
 def random_rollouts(env: gym.Env, n_transitions: int, seed: int = 0) -> ReplayBuffer:

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from rollouts import TINY_PANDA_COLLECT
 from startup import interrupt_while_starting
 
 from sb3_cql.protocol.runs import Run, model_timesteps
@@ -44,18 +45,7 @@ class Bench:
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory) -> Bench:
     bench = Bench(tmp_path_factory.mktemp("bench"))
-    bench.run(
-        "collect",
-        "--policy",
-        "noisy-regrasp",
-        "--action-mode",
-        "delta",
-        "--episodes",
-        "4",
-        "--dataset-id",
-        "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0",
-        module="sb3_cql.data",
-    )
+    bench.run(*TINY_PANDA_COLLECT, module="sb3_cql.data")
     return bench
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import optuna
 import pytest
 import yaml
+from rollouts import TINY_PANDA_COLLECT
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_cql.common.atomic import saved_model_problem
@@ -47,18 +48,7 @@ class Zoo:
 @pytest.fixture(scope="module")
 def zoo(tmp_path_factory) -> Zoo:
     zoo = Zoo(tmp_path_factory.mktemp("zoo"))
-    zoo.run(
-        "collect",
-        "--policy",
-        "noisy-regrasp",
-        "--action-mode",
-        "delta",
-        "--episodes",
-        "4",
-        "--dataset-id",
-        "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0",
-        module="sb3_cql.data",
-    )
+    zoo.run(*TINY_PANDA_COLLECT, module="sb3_cql.data")
     return zoo
 
 
