@@ -14,7 +14,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from sb3_cql import BC, CQL, IQL
 from sb3_cql.common import SettingError, TrainingDivergedError, returns_to_go
 from sb3_cql.iql import expectile_loss
-from sb3_cql.iql.policies import IQLActor
+from sb3_cql.iql.policies import LOG_STD_MAX, LOG_STD_MIN, IQLActor
 
 TINY = {"net_arch": [16]}
 
@@ -75,6 +75,28 @@ def test_the_actor_regresses_on_the_data_actions_weighted_by_advantage():
     log_prob = actor.log_prob_of(obs, actions)
     assert th.isfinite(log_prob).all()
     th.testing.assert_close(log_prob, by_hand)
+
+
+def test_the_actors_spread_is_one_per_dimension_bounded_and_learns_down_from_its_upper_bound():
+    """The spread is the same at every state, within [exp(LOG_STD_MIN), exp(LOG_STD_MAX)], and started near its upper
+    bound it still learns the data's spread: SAC's clamped head, once past its bound, gets no gradient and stays."""
+    actor = pendulum_iql().actor
+    obs = th.tensor([[1.0, 0.0, 0.5], [-1.0, 0.3, -2.0]])
+    for logit in (-50.0, 0.0, 50.0):
+        actor.log_std_logits.data.fill_(logit)
+        log_std = actor.get_action_dist_params(obs)[1]
+        assert log_std.shape == (2, 1) and log_std[0] == log_std[1]
+        assert log_std.min() >= LOG_STD_MIN and log_std.max() <= LOG_STD_MAX
+    actor.log_std_logits.data.fill_(4.0)  # std 6.5, near exp(LOG_STD_MAX)
+    actions = th.from_numpy(np.random.default_rng(0).normal(0.0, 0.2, (256, 1)).astype(np.float32))
+    optimizer = th.optim.Adam(actor.parameters(), lr=0.05)
+    for _ in range(200):
+        loss = -actor.log_prob_of(th.zeros(256, 3), actions).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    std = actor.get_action_dist_params(th.zeros(1, 3))[1].exp().item()
+    assert std == pytest.approx(actions.std().item(), rel=0.2)
 
 
 class LinearCriticEnv(gym.Env):

@@ -3,11 +3,13 @@ network beside them, and the actor's distribution as the references fit it.
 
 - :class:`ValueNetwork`: ``V(s)``, an MLP of the critics' architecture on its own features extractor.
 - :class:`IQLActor`: SAC's ``Actor`` whose distribution is the references' for advantage-weighted regression
-  (ikostrikov/implicit_q_learning, d3rlpy): a Gaussian with mean ``tanh(mu)`` and the log-std head's spread, its
-  samples clipped to [-1, 1]. Its deterministic action is SAC's, ``tanh(mu)``.
+  (ikostrikov/implicit_q_learning, d3rlpy): a Gaussian with mean ``tanh(mu)`` and one learned spread per action
+  dimension, the same at every state, its samples clipped to [-1, 1]. Its deterministic action is SAC's, ``tanh(mu)``.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import torch as th
 from gymnasium import spaces
@@ -65,11 +67,31 @@ class ValueNetwork(BaseModel):
         return self.v_net(self.extract_features(obs, self.features_extractor))
 
 
+#: The bounds of the IQL actor's log-std, d3rlpy's for IQL (ikostrikov/implicit_q_learning clips at the same).
+LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
 class IQLActor(Actor):
     """SAC's ``Actor`` with the references' distribution for advantage-weighted regression: ``N(tanh(mu), std)``,
-    ``std`` from SAC's log-std head (clamped as SAC's), samples clipped to [-1, 1] (:meth:`log_prob_of`,
-    :meth:`forward`). The data's actions at the bounds of [-1, 1] (a gripper's) keep a finite likelihood, where a
-    squashed Gaussian's would need an infinite mean."""
+    samples clipped to [-1, 1] (:meth:`log_prob_of`, :meth:`forward`). The data's actions at the bounds of [-1, 1] (a
+    gripper's) keep a finite likelihood, where a squashed Gaussian's would need an infinite mean.
+
+    ``std`` is a parameter per action dimension, not SAC's head on the state (``log_std_logits``, as d3rlpy's
+    ``use_std_parameter``): ``log std = LOG_STD_MIN + sigmoid(logit) * (LOG_STD_MAX - LOG_STD_MIN)``, bounded with
+    a gradient everywhere. SAC's head is clamped at ``log std = 2``, past which it gets no gradient: under
+    advantage weights a head that overshoots there stays at ``std = 7.4`` for good, and its samples and the mean it
+    was fitted with are noise."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)  # (use_sde is refused by the offline base)
+        del self.log_std  # SAC's head on the state
+        self.log_std_logits = nn.Parameter(th.zeros(self.mu.out_features))
+
+    def get_action_dist_params(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
+        """``mu`` (before ``tanh``) at ``obs`` and the log-std, broadcast to it, as SAC's method returns them."""
+        mean_actions = self.mu(self.latent_pi(self.extract_features(obs, self.features_extractor)))
+        log_std = LOG_STD_MIN + th.sigmoid(self.log_std_logits) * (LOG_STD_MAX - LOG_STD_MIN)
+        return mean_actions, log_std.expand_as(mean_actions), {}
 
     def log_prob_of(self, obs: PyTorchObs, actions: th.Tensor) -> th.Tensor:
         """The log-density of ``actions`` (``(batch, action_dim)``, in [-1, 1]) at ``obs``, ``(batch,)``."""
