@@ -1,5 +1,5 @@
-"""The models committed under results/models: each loads with ``CQL.load`` and acts in the task it was fine-tuned on,
-and it is the model at the end of the fine-tuning its record describes; every study folder says how it was made."""
+"""The models committed under results/models: each loads with its class and acts in the task it was trained on, and
+it is the model at the end of the training its record describes; every study folder says how it was made."""
 
 import json
 import re
@@ -10,15 +10,18 @@ import numpy as np
 import pytest
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import CQL
+from sb3_cql import CQL, IQL
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 FINETUNED = sorted((RESULTS / "models").glob("finetune-*.zip"))
-MAX_BYTES = 20 * 1024 * 1024  # what the repository holds of models at most
+OFFLINE_YAW = sorted((RESULTS / "models").glob("offline-yaw-*.zip"))
+MAX_BYTES = 24 * 1024 * 1024  # what the repository holds of models at most
 
 
 def test_the_committed_models_fit_in_the_repository():
-    assert FINETUNED and sum(path.stat().st_size for path in FINETUNED) <= MAX_BYTES
+    models = sorted((RESULTS / "models").glob("*.zip"))
+    assert models == sorted(FINETUNED + OFFLINE_YAW)  # every committed model is checked below
+    assert sum(path.stat().st_size for path in models) <= MAX_BYTES
 
 
 def record_of(path: Path) -> tuple[str, dict]:
@@ -43,6 +46,28 @@ def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
     assert model.action_chunk == record.get("action_chunk", 1)
     assert model.cql_calibrated == (model.action_chunk == 1)  # the protocol's fine-tuning was calibrated; chunks cannot be
     env = gym.make(task, **record["env_kwargs"])
+    observation, _ = env.reset(seed=0)
+    action, _ = model.predict(observation, deterministic=True)
+    assert env.action_space.contains(action.astype(env.action_space.dtype))
+    np.testing.assert_array_equal(model.predict(observation, deterministic=True)[0], action)
+    env.close()
+
+
+#: The row of ``results/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is.
+OFFLINE_ROWS = {"iql": ("iql-yaw", IQL)}
+
+
+@pytest.mark.parametrize("path", OFFLINE_YAW, ids=lambda path: path.stem)
+def test_a_committed_offline_model_loads_with_its_class_and_acts_in_its_task(path):
+    """The final model of its row's training (20,000 gradient steps), with the row's evaluation record beside it, and
+    acting with its own action (``best_of_n`` 1) in the delta actions it was trained in."""
+    task, algo, seed = re.fullmatch(r"offline-yaw-(.+)-([a-z]+)-seed(\d+)", path.stem).groups()
+    row, algorithm = OFFLINE_ROWS[algo]
+    record = json.loads((RESULTS / "offline-yaw" / f"{row}-seed{seed}.json").read_text())
+    assert record["algo"] == algo and all(len(record["tasks"][name]["episodes"]) == 100 for name in record["tasks"])
+    model = algorithm.load(path)
+    assert model.num_timesteps == 20_000 and model.best_of_n == 1
+    env = gym.make(task, action_mode=record["tasks"][task]["action_mode"])
     observation, _ = env.reset(seed=0)
     action, _ = model.predict(observation, deterministic=True)
     assert env.action_space.contains(action.astype(env.action_space.dtype))

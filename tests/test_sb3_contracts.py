@@ -18,6 +18,7 @@ from stable_baselines3.common.envs import FakeImageEnv, SimpleMultiObsEnv
 
 from sb3_cql import BC, CQL, IQL
 from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql.common.policies import NormalizedFlatten
 
 TINY = {"net_arch": [16]}
 #: The algorithms under test: (class, keywords).
@@ -245,3 +246,16 @@ def test_normalize_observations_applies_to_an_mlp_policy_or_is_refused():
     assert model.normalize_observations is False
     with pytest.raises(ValueError, match="normalize_observations=True z-scores flat Box observations of an MlpPolicy"):
         CQL("CnnPolicy", images, dataset=buffer, normalize_observations=True)
+
+
+def test_iql_reads_raw_observations_by_default_as_the_references_and_z_scores_them_when_asked():
+    buffer = random_rollouts(gym.make("Pendulum-v1"), 50)
+    raw = IQL("MlpPolicy", "Pendulum-v1", dataset=buffer, seed=0)
+    assert raw.normalize_observations is False
+    assert not isinstance(raw.actor.features_extractor, NormalizedFlatten)
+    observation = np.array([0.5, -0.5, 7.0], dtype=np.float32)
+    assert np.allclose(raw.actor.features_extractor(th.as_tensor(observation)[None]).numpy(), observation)
+    normalized = IQL("MlpPolicy", "Pendulum-v1", dataset=buffer, seed=0, normalize_observations=None)
+    assert normalized.normalize_observations is True
+    assert isinstance(normalized.actor.features_extractor, NormalizedFlatten)
+    assert not np.allclose(normalized.actor.features_extractor(th.as_tensor(observation)[None]).numpy(), observation)

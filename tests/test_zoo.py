@@ -305,6 +305,16 @@ def test_console_script_with_an_explicit_config_file(zoo):
     assert config["batch_size"] == 16 and "eval_freq" not in config  # mine.yml, not hyperparams/cql.yml
 
 
+def test_every_config_file_is_installed_with_the_package():
+    import configparser
+
+    root = Path(__file__).resolve().parents[1]
+    setup = configparser.ConfigParser()
+    setup.read(root / "setup.cfg")
+    installed = {Path(name.strip()).name for name in setup["options.data_files"]["share/sb3-cql/hyperparams"].split(",")}
+    assert installed == {path.name for path in (root / "hyperparams").glob("*.yml")}
+
+
 def test_sac_baseline_starts_from_the_dataset(zoo):
     output = zoo.run("--algo", "sac", "--env", "Panda-v0", "-n", "30", "--eval-freq", "-1", "-f", "sac", *TINY,
                      "learning_starts:10", "callback:[{'sb3_cql.callbacks.PrefillReplayBuffer': "

@@ -58,7 +58,7 @@ class IQL(OfflineSAC):
 
     Defaults are the reference implementations' for a generic task (ikostrikov/implicit_q_learning's MuJoCo settings
     and d3rlpy's ``IQLConfig``: learning rates 3e-4, batch 256, ``expectile`` 0.7, ``temperature`` 3, weights
-    clipped at 100, ``tau`` 5e-3, gamma 0.99, 2 x 256 networks); its AntMaze settings, for sparse long-horizon goals,
+    clipped at 100, ``tau`` 5e-3, gamma 0.99, 2 x 256 networks, raw observations); its AntMaze settings, for sparse long-horizon goals,
     are ``expectile`` 0.9, ``temperature`` 10, rewards ``r - 1``.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with IQL's
@@ -84,7 +84,9 @@ class IQL(OfflineSAC):
     :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
         (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
-        ``None`` (the default) does for an ``MlpPolicy`` on Box observations.
+        ``False`` (the default, as the references) reads them raw; ``None`` z-scores them for an ``MlpPolicy`` on Box
+        observations. On a sparse task of hand-made data, z-scored observations made the critics' advantages noisier
+        and the advantage-weighted actor failed where raw ones succeeded, in d3rlpy's IQL too (``docs/benchmarks.md``).
     :param online_fraction: ``None`` (the default) trains offline; a fraction fine-tunes online with the offline data
         kept (:class:`~sb3_cql.common.OfflineSAC`).
     :param online_buffer_size: capacity of the online transitions when fine-tuning.
@@ -135,7 +137,7 @@ class IQL(OfflineSAC):
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
         best_of_n: int = 1,
-        normalize_observations: bool | None = None,
+        normalize_observations: bool | None = False,
         online_fraction: float | None = None,
         online_buffer_size: int = 1_000_000,
         learning_starts: int = 0,
