@@ -58,8 +58,8 @@ class IQL(OfflineSAC):
 
     Defaults are the reference implementations' for a generic task (ikostrikov/implicit_q_learning's MuJoCo settings
     and d3rlpy's ``IQLConfig``: learning rates 3e-4, batch 256, ``expectile`` 0.7, ``temperature`` 3, weights
-    clipped at 100, ``tau`` 5e-3, gamma 0.99, 2 x 256 networks, raw observations); its AntMaze settings, for sparse long-horizon goals,
-    are ``expectile`` 0.9, ``temperature`` 10, rewards ``r - 1``.
+    clipped at 100, ``tau`` 5e-3, gamma 0.99, 2 x 256 networks, raw observations); its AntMaze settings, for sparse
+    long-horizon goals, are ``expectile`` 0.9, ``temperature`` 10, rewards ``r - 1``.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with IQL's
         actor and value network, :mod:`sb3_cql.iql.policies`).
