@@ -1,5 +1,6 @@
 """RL-Zoo3 integration, through the zoo's own command lines in fresh interpreters, as users run them."""
 
+import configparser
 import os
 import re
 import shlex
@@ -306,8 +307,6 @@ def test_console_script_with_an_explicit_config_file(zoo):
 
 
 def test_every_config_file_is_installed_with_the_package():
-    import configparser
-
     root = Path(__file__).resolve().parents[1]
     setup = configparser.ConfigParser()
     setup.read(root / "setup.cfg")
