@@ -15,7 +15,9 @@ Two readings, both at states of the dataset's episodes (its first ``--episodes``
   degrees from a yaw that grasps it, the policy's own deterministic action (chunk) with the wrist joint's delta set
   to +1 in every action of the chunk, and to -1: towards that yaw and away from it (which sign turns which way is
   read off the data). Printed: the critic's value of the first minus that of the second, and how often the
-  policy's own first wrist action turns towards the grasping yaw.
+  policy's own first wrist action turns towards the grasping yaw. Then the data's own actions at those states: the
+  critic's advantage (IQL's ``Q - V``; the value for a model without a value network) of those whose first wrist
+  action turns towards the grasping yaw minus those that turn away, the signal an advantage-weighted actor learns.
 
 Printed::
 
@@ -26,6 +28,7 @@ Printed::
     rank correlation over the closings: critic's value vs lifted 0.12, vs data's return 0.10, vs angle 0.02; data's
     return vs angle 0.05
     1385 hovering states more than 20 deg from a grasping yaw: value turned towards it minus away from it +0.01 ...
+    the data's own actions there: advantage of those that turn towards it minus away +0.002 (690 towards, 695 away)
 
 The model must act in delta actions (``action_mode: delta``), whose wrist component turns the hand. Nothing is
 written; torch runs ``--threads`` threads (1 by default).
@@ -57,11 +60,15 @@ SLICES = envs.OBSERVATION_SLICES
 
 
 def values(model: Any, observations: np.ndarray, chunks: np.ndarray) -> np.ndarray:
-    """The twin critics' minimum value of each observation with its flattened action chunk."""
+    """The twin critics' minimum value of each observation with its flattened action chunk (as values: an IQL's
+    success-scale logits through their sigmoid)."""
     with th.no_grad():
         obs = th.as_tensor(observations, dtype=th.float32, device=model.device)
         act = th.as_tensor(chunks, dtype=th.float32, device=model.device)
-        return th.cat(model.critic(obs, act), dim=1).min(dim=1).values.cpu().numpy()
+        q_values = th.cat(model.critic(obs, act), dim=1)
+        if hasattr(model, "as_values"):
+            q_values = model.as_values(q_values)
+        return q_values.min(dim=1).values.cpu().numpy()
 
 
 def policy_chunks(model: Any, observations: np.ndarray) -> np.ndarray:
@@ -132,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     episodes = list(dataset.iterate_episodes(range(min(args.episodes, dataset.total_episodes))))
 
     closings: list[tuple[float, bool, float, np.ndarray, np.ndarray]] = []  # angle, lifted, return, obs, chunk
-    hovers: list[tuple[np.ndarray, float]] = []  # observation, turn to a grasping yaw
+    hovers: list[tuple[np.ndarray, float, np.ndarray | None]] = []  # observation, turn to a grasping yaw, data's chunk
     for episode in episodes:
         observations, actions = episode.observations[:-1], episode.actions
         returns = returns_to_go(scale * episode.rewards + bias, bool(episode.truncations[-1]), model.gamma)
@@ -146,7 +153,8 @@ def main(argv: list[str] | None = None) -> None:
         for step in hovering_steps(observations):
             turn = turn_to_grasp(observations[step])
             if closing_angle(observations[step]) is not None and abs(turn) > TURN_NEEDED:
-                hovers.append((observations[step], turn))
+                chunk = actions[step : step + h].ravel() if step + h <= len(actions) else None
+                hovers.append((observations[step], turn, chunk))
 
     print(f"{args.model} (action_chunk {h}) on {args.dataset}, {len(episodes)} episodes: "
           f"{len(closings)} closings on a lying cylinder")  # fmt: skip
@@ -167,8 +175,8 @@ def main(argv: list[str] | None = None) -> None:
     if not hovers:
         print("no hovering states more than 20 deg from a grasping yaw")
         return
-    observations = np.stack([observation for observation, _ in hovers])
-    towards = np.sign([turn for _, turn in hovers]) * wrist_turn_sign(episodes)  # the wrist delta's sign that turns towards
+    observations = np.stack([observation for observation, _, _ in hovers])
+    towards = np.sign([turn for _, turn, _ in hovers]) * wrist_turn_sign(episodes)  # the wrist delta's sign that turns towards
     own = policy_chunks(model, observations).reshape(len(hovers), h, -1)
     turned = {}
     for name, sign in (("towards", towards), ("away", -towards)):
@@ -180,6 +188,30 @@ def main(argv: list[str] | None = None) -> None:
         f"{len(hovers)} hovering states more than 20 deg from a grasping yaw: value turned towards it minus away from "
         f"it {difference.mean():+.2f} (std {difference.std():.2f}, positive at {np.mean(difference > 0):.2f} of the "
         f"states); the policy's own wrist action turns towards it at {np.mean(np.sign(own[:, 0, WRIST]) == towards):.2f}"
+    )
+    print(data_actions_line(model, hovers, towards, h))
+
+
+def data_actions_line(model: Any, hovers: list[Any], towards: np.ndarray, h: int) -> str:
+    """At the hovering states, how the critic scores the data's own actions (chunks) by the way their first wrist
+    action turns: the advantage ``Q(s, a) - V(s)`` (a model with a value network, IQL's) or the value ``Q(s, a)``,
+    those that turn towards a grasping yaw minus those that turn away. What an advantage-weighted actor learns from."""
+    kept = [i for i, (_, _, chunk) in enumerate(hovers) if chunk is not None]
+    observations = np.stack([hovers[i][0] for i in kept])
+    chunks = np.stack([hovers[i][2] for i in kept])
+    scores, name = values(model, observations, chunks), "value"
+    if hasattr(model, "value_net"):
+        with th.no_grad():
+            state_values = model.value_net(th.as_tensor(observations, dtype=th.float32, device=model.device))
+            if hasattr(model, "as_values"):
+                state_values = model.as_values(state_values)
+        scores, name = scores - state_values.flatten().cpu().numpy(), "advantage"
+    turning = np.sign(chunks.reshape(len(kept), h, -1)[:, 0, WRIST]) == towards[kept]
+    if turning.all() or not turning.any():
+        return f"the data's own actions there: all {len(kept)} turn {'towards' if turning.all() else 'away'}"
+    return (
+        f"the data's own actions there: {name} of those that turn towards it minus away "
+        f"{scores[turning].mean() - scores[~turning].mean():+.3f} ({turning.sum()} towards, {(~turning).sum()} away)"
     )
 
 

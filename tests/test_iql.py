@@ -13,7 +13,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_cql import BC, CQL, IQL
 from sb3_cql.common import SettingError, TrainingDivergedError, returns_to_go
-from sb3_cql.iql import expectile_loss
+from sb3_cql.iql import expectile_bce_loss, expectile_loss
 from sb3_cql.iql.policies import LOG_STD_MAX, LOG_STD_MIN, IQLActor
 
 TINY = {"net_arch": [16]}
@@ -62,6 +62,94 @@ def test_one_update_is_the_papers_losses_computed_by_hand(n_steps):
     assert logged["train/value_loss"] == pytest.approx(value_loss.item(), rel=1e-5)
     assert logged["train/iql_weight"] == pytest.approx(weights.mean().item(), rel=1e-5)
     assert logged["train/critic_loss"] == pytest.approx(critic_loss.item(), rel=1e-5)
+
+
+def test_the_success_scale_expectile_loss_weights_the_cross_entropy_by_hand():
+    logits = th.tensor([[0.0], [2.0], [-1.0]])
+    targets = th.tensor([[0.9], [0.5], [0.0]])
+    p = 1 / (1 + np.exp(-logits.numpy()[:, 0]))
+    t = targets.numpy()[:, 0]
+    bce = -(t * np.log(p) + (1 - t) * np.log(1 - p))
+    weights = np.where(t < p, 0.3, 0.7)  # target below the value: 1 - expectile
+    assert expectile_bce_loss(logits, targets, 0.7).item() == pytest.approx(np.mean(weights * bce), rel=1e-6)
+    # at 0.5 its minimum over a constant logit is the targets' mean (SARSA's value), found by gradient descent
+    logit = th.zeros(1, requires_grad=True)
+    optimizer = th.optim.SGD([logit], lr=5.0)
+    for _ in range(300):
+        optimizer.zero_grad()
+        expectile_bce_loss(logit.expand(3, 1), targets, 0.5).backward()
+        optimizer.step()
+    assert th.sigmoid(logit).item() == pytest.approx(targets.mean().item(), abs=1e-4)
+
+
+def sparse_success_buffer(episodes: int = 10, length: int = 40) -> tuple[gym.Env, ReplayBuffer]:
+    """A one-dimensional task whose every other episode ends in a success (reward 1, terminated); the others are cut
+    by the time limit."""
+    env = spaces_env(spaces.Box(-1.0, 1.0, (1,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32))
+    buffer = ReplayBuffer(episodes * length, env.observation_space, env.action_space)
+    rng = np.random.default_rng(0)
+    for episode in range(episodes):
+        for step in range(length):
+            done = step == length - 1
+            reward = 1.0 if done and episode % 2 == 0 else 0.0
+            buffer.add(np.array([step / length]), np.array([(step + 1) / length]), rng.uniform(-1, 1, 1),
+                       np.array([reward]), np.array([done]), [{"TimeLimit.truncated": done and reward == 0}])  # fmt: skip
+    return env, buffer
+
+
+@pytest.mark.parametrize("n_steps", [1, 5])
+def test_one_update_on_the_success_scale_is_the_cross_entropies_computed_by_hand(n_steps):
+    """value_loss_type="bce" with q_agg="mean": the value's weighted cross-entropy against the mean of the target
+    twins' sigmoids, the advantage weights from sigmoids, the critics' cross-entropies against r + (1 - d) *
+    discount * sigmoid(V(s')), each equal to the same computation by hand on the batch the step drew."""
+    env, buffer = sparse_success_buffer()
+    model = IQL("MlpPolicy", env, dataset=buffer, gamma=0.999, expectile=0.7, temperature=2.0, n_steps=n_steps,
+                value_loss_type="bce", q_agg="mean", batch_size=32, policy_kwargs=TINY, seed=0)  # fmt: skip
+    model._setup_learn(1, None)
+    before = copy.deepcopy(model.policy)
+    state = np.random.get_state()
+    batch = model.replay_buffer.sample(32)
+    np.random.set_state(state)
+    model.train(gradient_steps=1, batch_size=32)
+    logged = model.logger.name_to_value
+
+    def bce(logit: th.Tensor, target: th.Tensor) -> th.Tensor:
+        p = th.sigmoid(logit)
+        return -(target * th.log(p) + (1 - target) * th.log(1 - p))
+
+    obs, actions = batch.observations, batch.actions
+    with th.no_grad():
+        q_data = sum(th.sigmoid(q) for q in before.critic_target(obs, actions)) / 2
+        v_logit = before.value_net(obs)
+        value_loss = (th.where(q_data < th.sigmoid(v_logit), 0.3, 0.7) * bce(v_logit, q_data)).mean()
+        advantage = q_data - th.sigmoid(model.value_net(obs))
+        discounts = batch.discounts if n_steps > 1 else 0.999
+        target = batch.rewards + (1 - batch.dones) * discounts * th.sigmoid(model.value_net(batch.next_observations))
+        critic_loss = sum(bce(q, target).mean() for q in before.critic(obs, actions))
+    assert ((target >= 0) & (target <= 1)).all() and (batch.rewards > 0).any()
+    assert logged["train/value_loss"] == pytest.approx(value_loss.item(), rel=1e-5)
+    assert logged["train/iql_advantage"] == pytest.approx(advantage.mean().item(), rel=1e-4, abs=1e-7)
+    assert logged["train/critic_loss"] == pytest.approx(critic_loss.item(), rel=1e-5)
+    assert 0 < logged["train/iql_q_data"] < 1 and 0 < logged["train/iql_value"] < 1
+
+
+def test_values_on_the_success_scale_stay_between_a_failure_and_a_success(tmp_path):
+    """Trained long enough to move, the success-scale value of every state is in (0, 1), and the states closer to the
+    success are worth more."""
+    env, buffer = sparse_success_buffer()
+    model = IQL("MlpPolicy", env, dataset=buffer, gamma=0.999, expectile=0.5, n_steps=10, value_loss_type="bce",
+                batch_size=64, policy_kwargs={"net_arch": [32, 32]}, seed=0)  # fmt: skip
+    model.learn(1500)
+    observations = th.linspace(0, 1, 41).reshape(-1, 1)
+    with th.no_grad():
+        values = model.as_values(model.value_net(observations)).flatten()
+    assert ((values > 0) & (values < 1)).all()
+    assert values[-5:].mean() > values[:5].mean()
+    model.save(tmp_path / "bce.zip")
+    loaded = IQL.load(tmp_path / "bce.zip")
+    assert (loaded.value_loss_type, loaded.q_agg) == ("bce", "min")
+    with th.no_grad():
+        th.testing.assert_close(loaded.as_values(loaded.value_net(observations)).flatten(), values)
 
 
 def test_the_actor_regresses_on_the_data_actions_weighted_by_advantage():
@@ -230,6 +318,9 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"temperature": -1.0}, r"temperature must be a (finite )?number >= 0, got -1.0"),
         ({"max_weight": 0.0}, r"max_weight must be a (finite )?number > 0, got 0.0"),
         ({"reward_bias": float("nan")}, "reward_bias must be a finite number, got nan"),
+        ({"value_loss_type": "l1"}, "value_loss_type must be one of 'squared', 'bce', got 'l1'"),
+        ({"q_agg": "max"}, "q_agg must be one of 'min', 'mean', got 'max'"),
+        ({"value_loss_type": "bce"}, r'value_loss_type="bce" needs the critics\' rewards .* in \[0, 1\], the data give -1'),
     ],
 )
 def test_settings_outside_their_range_are_one_line(keywords, message):

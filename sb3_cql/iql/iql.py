@@ -35,6 +35,15 @@ def expectile_loss(differences: th.Tensor, expectile: float) -> th.Tensor:
     return (weight * differences.pow(2)).mean()
 
 
+def expectile_bce_loss(logits: th.Tensor, targets: th.Tensor, expectile: float) -> th.Tensor:
+    """The expectile loss on the success scale (``value_loss_type="bce"``): the binary cross-entropy of the value's
+    ``logits`` against the ``targets`` in [0, 1], each weighted ``|expectile - 1(u < 0)|`` with ``u = target -
+    sigmoid(logit)``. At ``expectile`` 0.5 its minimum is the mean of the targets (SHARSA's value loss, halved, as
+    :func:`expectile_loss` halves the squared error); above 0.5 it leans to the higher targets."""
+    weight = th.where(targets < th.sigmoid(logits), 1.0 - expectile, expectile)
+    return (weight * F.binary_cross_entropy_with_logits(logits, targets, reduction="none")).mean()
+
+
 class IQL(OfflineSAC):
     """Implicit Q-Learning (Kostrikov, Nair and Levine 2021, https://arxiv.org/abs/2110.06169), trained offline.
 
@@ -42,13 +51,21 @@ class IQL(OfflineSAC):
     and no maximum in the backup, nothing pushed down). Each gradient step, in the reference code's order:
 
     - the value, by expectile regression on the target critics at the data's actions:
-      ``L_V = E[|expectile - 1(u < 0)| u^2]``, ``u = min_i Q'_i(s, a) - V(s)`` (:func:`expectile_loss`);
+      ``L_V = E[|expectile - 1(u < 0)| u^2]``, ``u = min_i Q'_i(s, a) - V(s)`` (:func:`expectile_loss`; the twins'
+      mean instead of their minimum with ``q_agg="mean"``);
     - the actor, by advantage-weighted regression: ``L_pi = -E[min(exp(temperature * (Q'(s, a) - V(s))),
       max_weight) * log pi(a | s)]``, ``pi`` the Gaussian of :class:`~sb3_cql.iql.policies.IQLActor`;
     - the twin critics, by TD to the value of the next state: ``L_Q = sum_i E[(Q_i(s, a) - r - (1 - d) * discount *
       V(s'))^2]`` (each critic's full mean squared error, as the references), with SB3's n-step ``discounts``
       (``n_steps``, ``action_chunk``) and the critics' rewards ``reward_scale * r + reward_bias``;
     - the target critics, by Polyak averaging with ``tau``.
+
+    With ``value_loss_type="bce"`` the critics and the value are on the success scale, as SHARSA's (Park et al. 2025):
+    each network gives a logit, its value is the sigmoid of it (in (0, 1)), the TD targets ``r + (1 - d) * discount *
+    sigmoid(V(s'))`` and the twins' values are regressed by binary cross-entropy (:func:`expectile_bce_loss` for the
+    value), so no value can sink below a failure's 0 or rise above a success's 1. It needs rewards that are discounted
+    success probabilities: ``reward_scale * r + reward_bias`` in [0, 1] at every step of the data (a sparse 0/1
+    reward that ends the episode).
 
     Everything else is :class:`~sb3_cql.common.OfflineSAC`'s: datasets (Minari ids, objects, SB3 buffers),
     ``n_steps``, ``action_chunk``, the observation normaliser, ``save``/``load``, callbacks and online fine-tuning
@@ -81,6 +98,11 @@ class IQL(OfflineSAC):
         rewards); a sparse 0/1 reward that ends the episode needs neither: the values are then the discounted
         probability of success, in [0, 1].
     :param reward_bias: see ``reward_scale``.
+    :param value_loss_type: ``"squared"`` (the references' squared errors) or ``"bce"`` (values on the success scale,
+        trained by binary cross-entropy; see above).
+    :param q_agg: how the twin target critics combine into the value's target and the advantages: ``"min"`` (the
+        references') or ``"mean"`` (SHARSA's other choice; the minimum's downward bias compounds over long backups).
+        Best-of-N ranks by the minimum either way.
     :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
         (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
@@ -136,6 +158,8 @@ class IQL(OfflineSAC):
         target_update_interval: int = 1,
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
+        value_loss_type: str = "squared",
+        q_agg: str = "min",
         best_of_n: int = 1,
         normalize_observations: bool | None = False,
         online_fraction: float | None = None,
@@ -163,6 +187,8 @@ class IQL(OfflineSAC):
         self.max_weight = max_weight
         self.reward_scale = reward_scale
         self.reward_bias = reward_bias
+        self.value_loss_type = value_loss_type
+        self.q_agg = q_agg
         super().__init__(
             policy,
             env,
@@ -207,6 +233,9 @@ class IQL(OfflineSAC):
         check_non_negative([("temperature", self.temperature)])
         check_non_negative([("max_weight", self.max_weight)], strictly=True)
         check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
+        for name, choices in (("value_loss_type", ("squared", "bce")), ("q_agg", ("min", "mean"))):
+            if getattr(self, name) not in choices:
+                raise SettingError(f"{name} must be one of {', '.join(map(repr, choices))}, got {getattr(self, name)!r}")
         if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
             raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
         if not issubclass(self.policy_class, IQLPolicy):
@@ -216,6 +245,30 @@ class IQL(OfflineSAC):
     def _create_aliases(self) -> None:
         super()._create_aliases()
         self.value_net = self.policy.value_net
+
+    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        """OfflineSAC's, then, on the success scale, a check that the critics' rewards are in [0, 1]."""
+        super()._fill_from_dataset(dataset)
+        if self.value_loss_type == "bce":
+            rewards = self.reward_scale * self.replay_buffer.rewards[: self.replay_buffer.size()] + self.reward_bias
+            if rewards.size and (rewards.min() < 0 or rewards.max() > 1):
+                raise SettingError(
+                    f'value_loss_type="bce" needs the critics\' rewards (reward_scale * reward + reward_bias) in [0, 1], '
+                    f"the data give {rewards.min():g} to {rewards.max():g}: set reward_scale and reward_bias so that a "
+                    'success is 1 and every other step 0, or use value_loss_type="squared"'
+                )
+
+    def as_values(self, outputs: th.Tensor) -> th.Tensor:
+        """The critics' or the value network's ``outputs`` as values: themselves, or their sigmoid on the success
+        scale (``value_loss_type="bce"``)."""
+        return th.sigmoid(outputs) if self.value_loss_type == "bce" else outputs
+
+    def target_q_values(self, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        """The target twins' values of the data's actions, combined by ``q_agg`` (their minimum or their mean)."""
+        q_values = self.as_values(th.cat(self.critic_target(observations, actions), dim=1))
+        if self.q_agg == "mean":
+            return q_values.mean(dim=1, keepdim=True)
+        return q_values.min(dim=1, keepdim=True).values
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """IQL's update (the class docstring), ``gradient_steps`` times: the value, the actor, the critics, the
@@ -232,13 +285,16 @@ class IQL(OfflineSAC):
             discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
 
             with th.no_grad():
-                q_data = th.cat(self.critic_target(replay_data.observations, replay_data.actions), dim=1)
-                q_data = q_data.min(dim=1, keepdim=True).values
-            value_loss = expectile_loss(q_data - self.value_net(replay_data.observations), self.expectile)
+                q_data = self.target_q_values(replay_data.observations, replay_data.actions)
+            value_output = self.value_net(replay_data.observations)
+            if self.value_loss_type == "bce":
+                value_loss = expectile_bce_loss(value_output, q_data, self.expectile)
+            else:
+                value_loss = expectile_loss(q_data - value_output, self.expectile)
             self._step(self.value_net.optimizer, value_loss, "IQL's value loss")
 
             with th.no_grad():
-                value = self.value_net(replay_data.observations)
+                value = self.as_values(self.value_net(replay_data.observations))
                 advantage = q_data - value
                 weights = th.exp(self.temperature * advantage).clamp(max=self.max_weight)
             log_prob = self.actor.log_prob_of(replay_data.observations, replay_data.actions)
@@ -248,7 +304,10 @@ class IQL(OfflineSAC):
             with th.no_grad():
                 target_q_values = self.compute_target(replay_data, discounts)
             current_q_values = self.critic(replay_data.observations, replay_data.actions)
-            critic_loss = sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+            if self.value_loss_type == "bce":
+                critic_loss = sum(F.binary_cross_entropy_with_logits(q, target_q_values) for q in current_q_values)
+            else:
+                critic_loss = sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
             critic_loss_value = self._step(self.critic.optimizer, critic_loss, "IQL's critic loss")
 
             self._n_updates += 1
@@ -278,9 +337,12 @@ class IQL(OfflineSAC):
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
         """The critics' TD target, ``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`; the
-        samples' ``discounts`` for n-step returns, else ``gamma``)."""
-        next_values = self.value_net(replay_data.next_observations)
-        return self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
+        samples' ``discounts`` for n-step returns, else ``gamma``); on the success scale ``V(s')`` is the value
+        network's sigmoid and the target is kept in [0, 1] (a reward of 1 that does not end the episode, met online,
+        would take it above)."""
+        next_values = self.as_values(self.value_net(replay_data.next_observations))
+        target = self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
+        return target.clamp(0.0, 1.0) if self.value_loss_type == "bce" else target
 
     def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, description: str) -> float:
         """One optimizer step on ``loss``, refused (:class:`~sb3_cql.common.TrainingDivergedError`) before it is taken
