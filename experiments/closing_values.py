@@ -1,6 +1,7 @@
 """What a trained critic makes of the hand's yaw on a knocked-out cylinder, read off a dataset's own episodes.
 
-Usage: python experiments/closing_values.py MODEL.zip [--algo cql] [--dataset ID] [--episodes N] [--threads N]
+Usage: python experiments/closing_values.py MODEL.zip [--algo cql] [--dataset ID] [--episodes N] [--segment N]
+[--threads N]
 
 Two readings, both at states of the dataset's episodes (its first ``--episodes``) where the cylinder lies on its side:
 
@@ -18,6 +19,10 @@ Two readings, both at states of the dataset's episodes (its first ``--episodes``
   policy's own first wrist action turns towards the grasping yaw. Then the data's own actions at those states: the
   critic's advantage (IQL's ``Q - V``; the value for a model without a value network) of those whose first wrist
   action turns towards the grasping yaw minus those that turn away, the signal an advantage-weighted actor learns.
+  ``V(s)`` is IQL's value network, else the critics' value of the policy's own action. Last, the data's segments of
+  ``--segment`` steps from those states: their advantage (discounted return plus the discounted ``V`` at their end,
+  minus ``V(s)``) for those that end nearer a grasping yaw minus those that end farther, and the rank correlation of
+  ``V(s)`` with the turn still needed (negative where a hand nearer a grasping yaw is worth more).
 
 Printed::
 
@@ -29,6 +34,7 @@ Printed::
     return vs angle 0.05
     1385 hovering states more than 20 deg from a grasping yaw: value turned towards it minus away from it +0.01 ...
     the data's own actions there: advantage of those that turn towards it minus away +0.002 (690 towards, 695 away)
+    the data's 25-step segments from there: advantage of those that end nearer a grasping yaw minus farther +0.007 ...
 
 The model must act in delta actions (``action_mode: delta``), whose wrist component turns the hand. Nothing is
 written; torch runs ``--threads`` threads (1 by default).
@@ -123,6 +129,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--algo", default="cql", choices=sorted(ALGOS), help="its RL-Zoo3 name (cql)")
     parser.add_argument("--dataset", default="sb3cql/PandaForce-v0/noisy-regrasp-yaw-delta-1k-v0", help="dataset id")
     parser.add_argument("--episodes", type=positive_int, default=1000, help="the dataset's first N episodes (1000)")
+    parser.add_argument("--segment", type=positive_int, default=25, help="steps of the data's segments (25)")
     parser.add_argument("--threads", type=positive_int, default=1, help="torch threads (default 1)")
     args = parser.parse_args(argv)
     th.set_num_threads(args.threads)
@@ -139,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
     episodes = list(dataset.iterate_episodes(range(min(args.episodes, dataset.total_episodes))))
 
     closings: list[tuple[float, bool, float, np.ndarray, np.ndarray]] = []  # angle, lifted, return, obs, chunk
-    hovers: list[tuple[np.ndarray, float, np.ndarray | None]] = []  # observation, turn to a grasping yaw, data's chunk
+    hovers: list[tuple[np.ndarray, float, np.ndarray | None, Segment | None]] = []  # obs, turn, data's chunk, segment
     for episode in episodes:
         observations, actions = episode.observations[:-1], episode.actions
         returns = returns_to_go(scale * episode.rewards + bias, bool(episode.truncations[-1]), model.gamma)
@@ -154,7 +161,8 @@ def main(argv: list[str] | None = None) -> None:
             turn = turn_to_grasp(observations[step])
             if closing_angle(observations[step]) is not None and abs(turn) > TURN_NEEDED:
                 chunk = actions[step : step + h].ravel() if step + h <= len(actions) else None
-                hovers.append((observations[step], turn, chunk))
+                data = segment(episode, step, args.segment, scale, bias, model.gamma)
+                hovers.append((observations[step], turn, chunk, data))
 
     print(f"{args.model} (action_chunk {h}) on {args.dataset}, {len(episodes)} episodes: "
           f"{len(closings)} closings on a lying cylinder")  # fmt: skip
@@ -175,8 +183,8 @@ def main(argv: list[str] | None = None) -> None:
     if not hovers:
         print("no hovering states more than 20 deg from a grasping yaw")
         return
-    observations = np.stack([observation for observation, _, _ in hovers])
-    towards = np.sign([turn for _, turn, _ in hovers]) * wrist_turn_sign(episodes)  # the wrist delta's sign that turns towards
+    observations = np.stack([hover[0] for hover in hovers])
+    towards = np.sign([hover[1] for hover in hovers]) * wrist_turn_sign(episodes)  # the wrist delta's sign that turns towards
     own = policy_chunks(model, observations).reshape(len(hovers), h, -1)
     turned = {}
     for name, sign in (("towards", towards), ("away", -towards)):
@@ -190,28 +198,75 @@ def main(argv: list[str] | None = None) -> None:
         f"states); the policy's own wrist action turns towards it at {np.mean(np.sign(own[:, 0, WRIST]) == towards):.2f}"
     )
     print(data_actions_line(model, hovers, towards, h))
+    print(segments_line(model, hovers, args.segment))
+
+
+def state_values(model: Any, observations: np.ndarray) -> np.ndarray:
+    """``V(s)``: a value network's (IQL's, as values), else the critics' value of the policy's own action (chunk)."""
+    if not hasattr(model, "value_net"):
+        return values(model, observations, policy_chunks(model, observations))
+    with th.no_grad():
+        outputs = model.value_net(th.as_tensor(observations, dtype=th.float32, device=model.device))
+        outputs = model.as_values(outputs) if hasattr(model, "as_values") else outputs
+    return outputs.flatten().cpu().numpy()
 
 
 def data_actions_line(model: Any, hovers: list[Any], towards: np.ndarray, h: int) -> str:
     """At the hovering states, how the critic scores the data's own actions (chunks) by the way their first wrist
-    action turns: the advantage ``Q(s, a) - V(s)`` (a model with a value network, IQL's) or the value ``Q(s, a)``,
-    those that turn towards a grasping yaw minus those that turn away. What an advantage-weighted actor learns from."""
-    kept = [i for i, (_, _, chunk) in enumerate(hovers) if chunk is not None]
+    action turns: the advantage ``Q(s, a) - V(s)`` (:func:`state_values`) of those that turn towards a grasping yaw
+    minus those that turn away. What an advantage-weighted actor learns from."""
+    kept = [i for i, hover in enumerate(hovers) if hover[2] is not None]
     observations = np.stack([hovers[i][0] for i in kept])
     chunks = np.stack([hovers[i][2] for i in kept])
-    scores, name = values(model, observations, chunks), "value"
-    if hasattr(model, "value_net"):
-        with th.no_grad():
-            state_values = model.value_net(th.as_tensor(observations, dtype=th.float32, device=model.device))
-            if hasattr(model, "as_values"):
-                state_values = model.as_values(state_values)
-        scores, name = scores - state_values.flatten().cpu().numpy(), "advantage"
+    advantages = values(model, observations, chunks) - state_values(model, observations)
     turning = np.sign(chunks.reshape(len(kept), h, -1)[:, 0, WRIST]) == towards[kept]
     if turning.all() or not turning.any():
         return f"the data's own actions there: all {len(kept)} turn {'towards' if turning.all() else 'away'}"
     return (
-        f"the data's own actions there: {name} of those that turn towards it minus away "
-        f"{scores[turning].mean() - scores[~turning].mean():+.3f} ({turning.sum()} towards, {(~turning).sum()} away)"
+        f"the data's own actions there: advantage of those that turn towards it minus away "
+        f"{advantages[turning].mean() - advantages[~turning].mean():+.3f} ({turning.sum()} towards, {(~turning).sum()} away)"
+    )
+
+
+Segment = tuple[np.ndarray, float, float, float]  # last observation, discounted return, bootstrap discount, turn gained
+
+
+def segment(episode: Any, step: int, length: int, scale: float, bias: float, gamma: float) -> Segment | None:
+    """The data's ``length`` steps from ``step`` (fewer at the episode's end): the observation they end at, their
+    discounted rewards ``scale * r + bias``, the discount on the value there (0 after a termination) and how much
+    nearer a grasping yaw they brought the hand (rad); ``None`` if the cylinder no longer lies at the end."""
+    end = min(step + length, len(episode.actions))
+    last = episode.observations[end]
+    if closing_angle(last) is None:
+        return None
+    rewards = scale * episode.rewards[step:end] + bias
+    discounted = float(np.sum(rewards * gamma ** np.arange(end - step)))
+    bootstrap = 0.0 if episode.terminations[end - 1] else gamma ** (end - step)
+    gained = abs(turn_to_grasp(episode.observations[step])) - abs(turn_to_grasp(last))
+    return last, discounted, bootstrap, gained
+
+
+def segments_line(model: Any, hovers: list[Any], length: int) -> str:
+    """At the hovering states, the data's segments of ``length`` steps: their advantage ``return + discount * V(end) -
+    V(s)`` (:func:`state_values`), those that end nearer a grasping yaw minus those that end farther, and the rank
+    correlation of ``V(s)`` with the turn the hand still needs there (negative: a hand nearer a grasping yaw is worth
+    more)."""
+    observations = np.stack([hover[0] for hover in hovers])
+    needed = np.abs([hover[1] for hover in hovers])
+    correlation = spearman(state_values(model, observations), needed)
+    kept = [hover[3] for hover in hovers if hover[3] is not None]
+    if not kept:
+        return f"{length}-step segments: none ends on a lying cylinder; V vs the turn still needed {correlation:.2f}"
+    ends = state_values(model, np.stack([end for end, _, _, _ in kept]))
+    starts = state_values(model, np.stack([hover[0] for hover in hovers if hover[3] is not None]))
+    returns, bootstraps, gained = (np.array([kept_segment[i] for kept_segment in kept]) for i in (1, 2, 3))
+    advantages = returns + bootstraps * ends - starts
+    nearer = gained > 0
+    difference = advantages[nearer].mean() - advantages[~nearer].mean() if nearer.any() and (~nearer).any() else 0.0
+    return (
+        f"the data's {length}-step segments from there: advantage of those that end nearer a grasping yaw minus farther "
+        f"{difference:+.3f} (std {advantages.std():.3f}; {nearer.sum()} nearer, {(~nearer).sum()} farther); rank "
+        f"correlation of V with the turn still needed {correlation:.2f}"
     )
 
 

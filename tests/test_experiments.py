@@ -243,9 +243,13 @@ def test_closing_values_score_the_datas_closings_and_turns_on_a_lying_cylinder(r
     assert re.fullmatch(r"\d+ hovering states more than 20 deg from a grasping yaw: value turned towards it minus "
                         rf"away from it [+-]{FLOAT} \(std {FLOAT}, positive at {FLOAT} of the states\); the policy's "
                         rf"own wrist action turns towards it at {FLOAT}", lines[6]), lines[6]  # fmt: skip
-    assert re.fullmatch(rf"the data's own actions there: (value of those that turn towards it minus away [+-]{FLOAT} "
+    assert re.fullmatch(rf"the data's own actions there: (advantage of those that turn towards it minus away [+-]{FLOAT} "
                         r"\(\d+ towards, \d+ away\)|all \d+ turn (towards|away))", lines[7]), lines[7]  # fmt: skip
-    assert len(lines) == 8
+    assert re.fullmatch(rf"(the data's 25-step segments from there: advantage of those that end nearer a grasping yaw "
+                        rf"minus farther [+-]{FLOAT} \(std {FLOAT}; \d+ nearer, \d+ farther\)|25-step segments: none "
+                        rf"ends on a lying cylinder); (rank correlation of )?V (with|vs) the turn still needed "
+                        rf"({FLOAT}|nan)", lines[8]), lines[8]  # fmt: skip
+    assert len(lines) == 9
 
 
 def test_closing_values_refuse_a_model_of_absolute_actions(inputs, tmp_path):
