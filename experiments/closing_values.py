@@ -71,10 +71,13 @@ def values(model: Any, observations: np.ndarray, chunks: np.ndarray) -> np.ndarr
     with th.no_grad():
         obs = th.as_tensor(observations, dtype=th.float32, device=model.device)
         act = th.as_tensor(chunks, dtype=th.float32, device=model.device)
-        q_values = th.cat(model.critic(obs, act), dim=1)
-        if hasattr(model, "as_values"):
-            q_values = model.as_values(q_values)
-        return q_values.min(dim=1).values.cpu().numpy()
+        return as_values(model, th.cat(model.critic(obs, act), dim=1)).min(dim=1).values.cpu().numpy()
+
+
+def as_values(model: Any, outputs: th.Tensor) -> th.Tensor:
+    """A network's ``outputs`` as values: an IQL's (``IQL.as_values``, the sigmoid of success-scale logits), else
+    themselves."""
+    return model.as_values(outputs) if hasattr(model, "as_values") else outputs
 
 
 def policy_chunks(model: Any, observations: np.ndarray) -> np.ndarray:
@@ -197,8 +200,9 @@ def main(argv: list[str] | None = None) -> None:
         f"it {difference.mean():+.2f} (std {difference.std():.2f}, positive at {np.mean(difference > 0):.2f} of the "
         f"states); the policy's own wrist action turns towards it at {np.mean(np.sign(own[:, 0, WRIST]) == towards):.2f}"
     )
-    print(data_actions_line(model, hovers, towards, h))
-    print(segments_line(model, hovers, args.segment))
+    state_value = state_values(model, observations)
+    print(data_actions_line(model, hovers, state_value, towards, h))
+    print(segments_line(model, hovers, state_value, args.segment))
 
 
 def state_values(model: Any, observations: np.ndarray) -> np.ndarray:
@@ -207,18 +211,17 @@ def state_values(model: Any, observations: np.ndarray) -> np.ndarray:
         return values(model, observations, policy_chunks(model, observations))
     with th.no_grad():
         outputs = model.value_net(th.as_tensor(observations, dtype=th.float32, device=model.device))
-        outputs = model.as_values(outputs) if hasattr(model, "as_values") else outputs
-    return outputs.flatten().cpu().numpy()
+        return as_values(model, outputs).flatten().cpu().numpy()
 
 
-def data_actions_line(model: Any, hovers: list[Any], towards: np.ndarray, h: int) -> str:
+def data_actions_line(model: Any, hovers: list[Any], state_value: np.ndarray, towards: np.ndarray, h: int) -> str:
     """At the hovering states, how the critic scores the data's own actions (chunks) by the way their first wrist
-    action turns: the advantage ``Q(s, a) - V(s)`` (:func:`state_values`) of those that turn towards a grasping yaw
-    minus those that turn away. What an advantage-weighted actor learns from."""
+    action turns: the advantage ``Q(s, a) - V(s)`` (``state_value``, :func:`state_values` of the states) of those that
+    turn towards a grasping yaw minus those that turn away. What an advantage-weighted actor learns from."""
     kept = [i for i, hover in enumerate(hovers) if hover[2] is not None]
     observations = np.stack([hovers[i][0] for i in kept])
     chunks = np.stack([hovers[i][2] for i in kept])
-    advantages = values(model, observations, chunks) - state_values(model, observations)
+    advantages = values(model, observations, chunks) - state_value[kept]
     turning = np.sign(chunks.reshape(len(kept), h, -1)[:, 0, WRIST]) == towards[kept]
     if turning.all() or not turning.any():
         return f"the data's own actions there: all {len(kept)} turn {'towards' if turning.all() else 'away'}"
@@ -246,21 +249,19 @@ def segment(episode: Any, step: int, length: int, scale: float, bias: float, gam
     return last, discounted, bootstrap, gained
 
 
-def segments_line(model: Any, hovers: list[Any], length: int) -> str:
+def segments_line(model: Any, hovers: list[Any], state_value: np.ndarray, length: int) -> str:
     """At the hovering states, the data's segments of ``length`` steps: their advantage ``return + discount * V(end) -
-    V(s)`` (:func:`state_values`), those that end nearer a grasping yaw minus those that end farther, and the rank
-    correlation of ``V(s)`` with the turn the hand still needs there (negative: a hand nearer a grasping yaw is worth
-    more)."""
-    observations = np.stack([hover[0] for hover in hovers])
-    needed = np.abs([hover[1] for hover in hovers])
-    correlation = spearman(state_values(model, observations), needed)
-    kept = [hover[3] for hover in hovers if hover[3] is not None]
+    V(s)`` (``state_value``, :func:`state_values` of the states), those that end nearer a grasping yaw minus those that
+    end farther, and the rank correlation of ``V(s)`` with the turn the hand still needs there (negative: a hand nearer
+    a grasping yaw is worth more)."""
+    correlation = spearman(state_value, np.abs([hover[1] for hover in hovers]))
+    kept = [i for i, hover in enumerate(hovers) if hover[3] is not None]
     if not kept:
-        return f"{length}-step segments: none ends on a lying cylinder; V vs the turn still needed {correlation:.2f}"
-    ends = state_values(model, np.stack([end for end, _, _, _ in kept]))
-    starts = state_values(model, np.stack([hover[0] for hover in hovers if hover[3] is not None]))
-    returns, bootstraps, gained = (np.array([kept_segment[i] for kept_segment in kept]) for i in (1, 2, 3))
-    advantages = returns + bootstraps * ends - starts
+        return (f"{length}-step segments: none ends on a lying cylinder; rank correlation of V with the turn still "
+                f"needed {correlation:.2f}")  # fmt: skip
+    ends = state_values(model, np.stack([hovers[i][3][0] for i in kept]))
+    returns, bootstraps, gained = (np.array([hovers[i][3][j] for i in kept]) for j in (1, 2, 3))
+    advantages = returns + bootstraps * ends - state_value[kept]
     nearer = gained > 0
     difference = advantages[nearer].mean() - advantages[~nearer].mean() if nearer.any() and (~nearer).any() else 0.0
     return (
