@@ -223,6 +223,12 @@ def test_non_finite_or_mistyped_physics_are_refused_where_the_task_is_made(capsy
         ),
         ("cql", ["learning_rate:-0.001"], "learning_rate must be a number >= 0, got -0.001"),
         (
+            "iql",
+            ["actor_learning_rate:'lin_x'"],
+            "--hyperparams actor_learning_rate:'lin_x': actor_learning_rate must be a number >= 0 or a "
+            "linear schedule 'lin_<initial value>'; e.g. actor_learning_rate:0.0003 or",
+        ),
+        (
             "cql",
             ["dataset:sb3cql/Panda-v0/pid-v0"],
             "--hyperparams dataset:sb3cql/Panda-v0/pid-v0: NameError: name "

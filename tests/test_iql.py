@@ -152,6 +152,56 @@ def test_values_on_the_success_scale_stay_between_a_failure_and_a_success(tmp_pa
         th.testing.assert_close(loaded.as_values(loaded.value_net(observations)).flatten(), values)
 
 
+def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_data_by_hand(tmp_path):
+    """With actor_loss_type="ddpg_bc" the logged actor loss is -mean(Q)/mean|Q| at the actor's deterministic action
+    (Q the twins' minimum, before the critics' step) plus actor_bc_weight times the squared error to the data's
+    actions plus the spread's negative log-likelihood around the detached mean; the setting is saved with the model."""
+    model = pendulum_iql(actor_loss_type="ddpg_bc", actor_bc_weight=2.0)
+    model._setup_learn(1, None)
+    before = copy.deepcopy(model.policy)
+    state = np.random.get_state()
+    batch = model.replay_buffer.sample(16)
+    np.random.set_state(state)
+    model.train(gradient_steps=1, batch_size=16)
+    logged = model.logger.name_to_value
+
+    with th.no_grad():
+        mean_actions, log_std, _ = before.actor.get_action_dist_params(batch.observations)
+        q_pi = th.min(*before.critic(batch.observations, th.tanh(mean_actions)))
+        bc = ((th.tanh(mean_actions) - batch.actions) ** 2).mean()
+        spread = -th.distributions.Normal(th.tanh(mean_actions), log_std.exp()).log_prob(batch.actions).sum(-1).mean()
+        by_hand = -q_pi.mean() / q_pi.abs().mean() + 2.0 * bc + spread
+    assert logged["train/actor_loss"] == pytest.approx(by_hand.item(), rel=1e-5)
+    assert logged["train/actor_bc_loss"] == pytest.approx(bc.item(), rel=1e-5)
+    model.save(tmp_path / "model.zip")
+    loaded = IQL.load(tmp_path / "model.zip")
+    assert (loaded.actor_loss_type, loaded.actor_bc_weight) == ("ddpg_bc", 2.0)
+
+
+def test_the_ddpg_bc_actor_climbs_a_known_critic_as_far_as_its_anchor_lets_it():
+    """Critics that value an action by its first coordinate (Q = a_0 + 2, fixed): without the anchor the actor's
+    deterministic action climbs to a_0 near 1; with a heavy anchor it stays near the data's actions."""
+    final = {}
+    for weight in (0.0, 50.0):
+        model = IQL("MlpPolicy", LinearCriticEnv(), buffer_size=64, batch_size=32, policy_kwargs={"net_arch": []},
+                    actor_loss_type="ddpg_bc", actor_bc_weight=weight, learning_rate=1e-2, seed=0)  # fmt: skip
+        observations = np.random.default_rng(0).uniform(-1, 1, (64, 2)).astype(np.float32)
+        for obs in observations:
+            model.replay_buffer.add(obs, obs, np.zeros(3, np.float32), np.zeros(1), np.zeros(1), [{}])
+        with th.no_grad():
+            for q_net in model.critic.q_networks:
+                q_net[0].weight.zero_()
+                q_net[0].weight[0, 2] = 1.0
+                q_net[0].bias.fill_(2.0)
+        model.critic.optimizer = th.optim.SGD(model.critic.parameters(), lr=0.0)  # the critics stay as set
+        model._setup_learn(1, None)
+        model.train(gradient_steps=300, batch_size=32)
+        with th.no_grad():
+            final[weight] = model.actor(th.from_numpy(observations), deterministic=True)[:, 0].mean().item()
+    assert final[0.0] > 0.9
+    assert abs(final[50.0]) < 0.2
+
+
 def test_the_actor_regresses_on_the_data_actions_weighted_by_advantage():
     """The actor's loss is -mean(w * log N(a | tanh(mu), std)): a finite likelihood also for actions at the bounds."""
     actor = pendulum_iql().actor
@@ -320,6 +370,8 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"reward_bias": float("nan")}, "reward_bias must be a finite number, got nan"),
         ({"value_loss_type": "l1"}, "value_loss_type must be one of 'squared', 'bce', got 'l1'"),
         ({"q_agg": "max"}, "q_agg must be one of 'min', 'mean', got 'max'"),
+        ({"actor_loss_type": "td3"}, "actor_loss_type must be one of 'awr', 'ddpg_bc', got 'td3'"),
+        ({"actor_bc_weight": -1.0}, r"actor_bc_weight must be a (finite )?number >= 0, got -1.0"),
         ({"value_loss_type": "bce"}, r'value_loss_type="bce" needs the critics\' rewards .* in \[0, 1\], the data give -1'),
     ],
 )

@@ -22,8 +22,9 @@ INPUT_ERRORS = (
 #: keywords of the algorithm's class, the keys it takes.
 ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "env_wrapper", "vec_env_wrapper", "frame_stack", "callback",
             "monitor_kwargs", "env_kwargs", "noise_type", "noise_std")  # fmt: skip
-#: The hyperparameters whose string values the zoo reads as schedules, ``lin_<initial value>``.
-SCHEDULE_KEYS = ("learning_rate",)
+#: The hyperparameters whose string values are read as schedules, ``lin_<initial value>``: the zoo's
+#: ``learning_rate``, and our algorithms' ``actor_learning_rate`` (read by :func:`read_schedules`).
+SCHEDULE_KEYS = ("learning_rate", "actor_learning_rate")
 
 
 def input_error(error: BaseException) -> bool:
@@ -92,3 +93,13 @@ def check_hyperparameters(algo: type, hyperparams: dict[str, Any]) -> None:
             if not valid:
                 zoo_parse_error("--hyperparams", f"{key}:{value!r}", f"{key} must be a number >= 0 or a linear schedule "
                                 f"'lin_<initial value>'", f"e.g. {key}:0.0003 or {key}:\"'lin_0.0003'\"")  # fmt: skip
+
+
+def read_schedules(hyperparams: dict[str, Any]) -> None:
+    """The ``lin_<initial value>`` strings of :data:`SCHEDULE_KEYS` that the zoo does not read itself (it reads
+    ``learning_rate`` only), as the zoo's linear schedules, after :func:`check_hyperparameters`."""
+    from rl_zoo3.utils import SimpleLinearSchedule  # (with the zoo, not with this module)
+
+    for key in SCHEDULE_KEYS[1:]:
+        if isinstance(hyperparams.get(key), str):
+            hyperparams[key] = SimpleLinearSchedule(float(hyperparams[key].partition("_")[2]))

@@ -75,6 +75,7 @@ def extend_exp_manager(exp_manager: ModuleType) -> None:
         if self.algo in ALGOS:
             read_noise_settings(self, hyperparams)
             errors.check_hyperparameters(zoo_utils.ALGOS[self.algo], hyperparams)
+            errors.read_schedules(hyperparams)
         return hyperparams, saved_hyperparams
 
     def setup_experiment(self) -> Any:
