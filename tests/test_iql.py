@@ -152,11 +152,13 @@ def test_values_on_the_success_scale_stay_between_a_failure_and_a_success(tmp_pa
         th.testing.assert_close(loaded.as_values(loaded.value_net(observations)).flatten(), values)
 
 
-def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_data_by_hand(tmp_path):
+@pytest.mark.parametrize("actor_loss_type", ["ddpg_bc", "ddpg_awr"])
+def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_data_by_hand(tmp_path, actor_loss_type):
     """With actor_loss_type="ddpg_bc" the logged actor loss is -mean(Q)/mean|Q| at the actor's deterministic action
     (Q the twins' minimum, before the critics' step) plus actor_bc_weight times the squared error to the data's
-    actions plus the spread's negative log-likelihood around the detached mean; the setting is saved with the model."""
-    model = pendulum_iql(actor_loss_type="ddpg_bc", actor_bc_weight=2.0)
+    actions plus the spread's negative log-likelihood around the detached mean; "ddpg_awr" weights each sample's
+    squared error by its advantage weight over the batch's mean weight. The setting is saved with the model."""
+    model = pendulum_iql(actor_loss_type=actor_loss_type, actor_bc_weight=2.0, temperature=0.5, max_weight=3.0)
     model._setup_learn(1, None)
     before = copy.deepcopy(model.policy)
     state = np.random.get_state()
@@ -168,14 +170,19 @@ def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_
     with th.no_grad():
         mean_actions, log_std, _ = before.actor.get_action_dist_params(batch.observations)
         q_pi = th.min(*before.critic(batch.observations, th.tanh(mean_actions)))
-        bc = ((th.tanh(mean_actions) - batch.actions) ** 2).mean()
+        squared_errors = ((th.tanh(mean_actions) - batch.actions) ** 2).mean(dim=1)
+        q_data = th.min(*before.critic_target(batch.observations, batch.actions)).squeeze(1)
+        weights = th.exp(0.5 * (q_data - model.value_net(batch.observations).squeeze(1))).clamp(max=3.0)
+        anchor = squared_errors.mean() if actor_loss_type == "ddpg_bc" else (weights * squared_errors).mean() / weights.mean()
         spread = -th.distributions.Normal(th.tanh(mean_actions), log_std.exp()).log_prob(batch.actions).sum(-1).mean()
-        by_hand = -q_pi.mean() / q_pi.abs().mean() + 2.0 * bc + spread
+        by_hand = -q_pi.mean() / q_pi.abs().mean() + 2.0 * anchor + spread
+    if actor_loss_type == "ddpg_awr":
+        assert weights.std() > 0.01  # unequal weights: the weighted anchor differs from the plain one
     assert logged["train/actor_loss"] == pytest.approx(by_hand.item(), rel=1e-5)
-    assert logged["train/actor_bc_loss"] == pytest.approx(bc.item(), rel=1e-5)
+    assert logged["train/actor_bc_loss"] == pytest.approx(squared_errors.mean().item(), rel=1e-5)
     model.save(tmp_path / "model.zip")
     loaded = IQL.load(tmp_path / "model.zip")
-    assert (loaded.actor_loss_type, loaded.actor_bc_weight) == ("ddpg_bc", 2.0)
+    assert (loaded.actor_loss_type, loaded.actor_bc_weight) == (actor_loss_type, 2.0)
 
 
 def test_the_ddpg_bc_actor_climbs_a_known_critic_as_far_as_its_anchor_lets_it():
@@ -370,7 +377,7 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"reward_bias": float("nan")}, "reward_bias must be a finite number, got nan"),
         ({"value_loss_type": "l1"}, "value_loss_type must be one of 'squared', 'bce', got 'l1'"),
         ({"q_agg": "max"}, "q_agg must be one of 'min', 'mean', got 'max'"),
-        ({"actor_loss_type": "td3"}, "actor_loss_type must be one of 'awr', 'ddpg_bc', got 'td3'"),
+        ({"actor_loss_type": "td3"}, "actor_loss_type must be one of 'awr', 'ddpg_bc', 'ddpg_awr', got 'td3'"),
         ({"actor_bc_weight": -1.0}, r"actor_bc_weight must be a (finite )?number >= 0, got -1.0"),
         ({"value_loss_type": "bce"}, r'value_loss_type="bce" needs the critics\' rewards .* in \[0, 1\], the data give -1'),
     ],

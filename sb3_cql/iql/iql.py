@@ -66,7 +66,10 @@ class IQL(OfflineSAC):
     TD3+BC): ``L_pi = -E[Q(s, tanh(mu(s)))] / E[|Q(s, tanh(mu(s)))|] + actor_bc_weight * E[(tanh(mu(s)) - a)^2]``,
     ``Q`` the minimum of the twins and the denominator detached (:func:`~sb3_cql.common.offline.behaviour_cloning_loss`
     and the normalisation of CQL's ``actor_bc_weight``); the spread, which only the actor's samples and best-of-N
-    use, is fitted to the data's actions around the detached mean by likelihood.
+    use, is fitted to the data's actions around the detached mean by likelihood. ``"ddpg_awr"`` weights each sample's
+    squared error in that imitation by AWR's weight, ``min(exp(temperature * (Q'(s, a) - V(s))), max_weight)``,
+    divided by the batch's mean weight (so ``actor_bc_weight`` keeps its scale): the critics' gradient refines the
+    action while the imitation leans to the data's better actions.
 
     With ``value_loss_type="bce"`` the critics and the value are on the success scale, as SHARSA's (Park et al. 2025):
     each network gives a logit, its value is the sigmoid of it (in (0, 1)), the TD targets ``r + (1 - d) * discount *
@@ -99,12 +102,14 @@ class IQL(OfflineSAC):
     :param gamma: discount factor (up to 1; 0.999 for goals hundreds of steps after the choice that decides them).
     :param expectile: the value's expectile of Q over the data's actions, in [0.5, 1): 0.5 is SARSA's mean, higher is
         closer to the best action the data show.
-    :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning); AWR's only.
+    :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning); unused by
+        ``"ddpg_bc"``.
     :param max_weight: the largest advantage weight.
     :param actor_loss_type: how the actor is extracted from the critics: ``"awr"`` (the paper's advantage-weighted
-        regression) or ``"ddpg_bc"`` (the critics' gradient at the actor's action, anchored to the data; see above).
-    :param actor_bc_weight: with ``"ddpg_bc"``, the weight of the imitation against the critics' normalised value,
-        as CQL's (TD3+BC's ``alpha`` is ``1 / actor_bc_weight``; its default 2.5 is 0.4 here).
+        regression), ``"ddpg_bc"`` (the critics' gradient at the actor's action, anchored to the data) or
+        ``"ddpg_awr"`` (the same, the anchor weighted by AWR's weights); see above.
+    :param actor_bc_weight: with ``"ddpg_bc"`` and ``"ddpg_awr"``, the weight of the imitation against the critics'
+        normalised value, as CQL's (TD3+BC's ``alpha`` is ``1 / actor_bc_weight``; its default 2.5 is 0.4 here).
     :param target_update_interval: gradient steps between target updates.
     :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
         rewards); a sparse 0/1 reward that ends the episode needs neither: the values are then the discounted
@@ -253,7 +258,7 @@ class IQL(OfflineSAC):
         for name, choices in (
             ("value_loss_type", ("squared", "bce")),
             ("q_agg", ("min", "mean")),
-            ("actor_loss_type", ("awr", "ddpg_bc")),
+            ("actor_loss_type", ("awr", "ddpg_bc", "ddpg_awr")),
         ):
             if getattr(self, name) not in choices:
                 raise SettingError(f"{name} must be one of {', '.join(map(repr, choices))}, got {getattr(self, name)!r}")
@@ -294,8 +299,8 @@ class IQL(OfflineSAC):
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """IQL's update (the class docstring), ``gradient_steps`` times: the value, the actor, the critics, the
         targets. Logs SB3's ``train/actor_loss`` and ``train/critic_loss``, and ``train/value_loss``,
-        ``train/iql_q_data``, ``train/iql_value``, ``train/iql_advantage``, and ``train/iql_weight`` (the mean
-        advantage weight) or ``train/actor_bc_loss`` (``"ddpg_bc"``'s imitation)."""
+        ``train/iql_q_data``, ``train/iql_value``, ``train/iql_advantage``, ``train/iql_weight`` (the mean
+        advantage weight), and with the DDPG extractions ``train/actor_bc_loss`` (their imitation, unweighted)."""
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.critic.optimizer, self.value_net.optimizer])
         update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
@@ -317,13 +322,13 @@ class IQL(OfflineSAC):
             with th.no_grad():
                 value = self.as_values(self.value_net(replay_data.observations))
                 advantage = q_data - value
-            if self.actor_loss_type == "ddpg_bc":
-                actor_loss = self.ddpg_bc_actor_loss(replay_data, logs)
-            else:
-                weights = th.exp(self.temperature * advantage).clamp(max=self.max_weight)
+            weights = th.exp(self.temperature * advantage).clamp(max=self.max_weight).squeeze(1)
+            if self.actor_loss_type == "awr":
                 log_prob = self.actor.log_prob_of(replay_data.observations, replay_data.actions)
-                actor_loss = -(weights.squeeze(1) * log_prob).mean()
-                logs.setdefault("train/iql_weight", []).append(weights.mean().item())
+                actor_loss = -(weights * log_prob).mean()
+            else:
+                imitation_weights = weights / weights.mean() if self.actor_loss_type == "ddpg_awr" else None
+                actor_loss = self.ddpg_bc_actor_loss(replay_data, logs, imitation_weights)
             self._step(self.actor.optimizer, actor_loss, "IQL's actor loss")
 
             with th.no_grad():
@@ -347,6 +352,7 @@ class IQL(OfflineSAC):
                 ("train/iql_q_data", q_data.mean().item()),
                 ("train/iql_value", value.mean().item()),
                 ("train/iql_advantage", advantage.mean().item()),
+                ("train/iql_weight", weights.mean().item()),
             ):
                 logs.setdefault(key, []).append(number)
 
@@ -354,18 +360,26 @@ class IQL(OfflineSAC):
         for key, values in logs.items():
             self.logger.record(key, float(np.mean(values)))
 
-    def ddpg_bc_actor_loss(self, replay_data: ReplayBufferSamples, logs: dict[str, list[float]]) -> th.Tensor:
-        """The actor's loss with ``actor_loss_type="ddpg_bc"`` (the class docstring): the critics' minimum at the
-        actor's deterministic action, divided by its batch mean ``|Q|`` (detached), against ``actor_bc_weight`` times
-        the imitation of the data's actions; plus the spread's likelihood of the data's actions around the detached
-        mean. Logs ``train/actor_bc_loss``."""
+    def ddpg_bc_actor_loss(
+        self,
+        replay_data: ReplayBufferSamples,
+        logs: dict[str, list[float]],
+        imitation_weights: th.Tensor | None = None,
+    ) -> th.Tensor:
+        """The actor's loss with ``actor_loss_type`` ``"ddpg_bc"`` or ``"ddpg_awr"`` (the class docstring): the
+        critics' minimum at the actor's deterministic action, divided by its batch mean ``|Q|`` (detached), against
+        ``actor_bc_weight`` times the imitation of the data's actions, each sample's squared error weighted by
+        ``imitation_weights`` (``(batch,)``, ``None``: equally); plus the spread's likelihood of the data's actions
+        around the detached mean. Logs ``train/actor_bc_loss``, the unweighted imitation."""
         mean_actions, log_std, _ = self.actor.get_action_dist_params(replay_data.observations)
         actions_pi = th.tanh(mean_actions)
         q_pi = self.as_values(th.cat(self.critic(replay_data.observations, actions_pi), dim=1)).min(dim=1).values
         bc_loss = behaviour_cloning_loss(mean_actions, replay_data.actions)
+        logs.setdefault("train/actor_bc_loss", []).append(bc_loss.item())
+        if imitation_weights is not None:
+            bc_loss = (imitation_weights * (actions_pi - replay_data.actions).pow(2).mean(dim=-1)).mean()
         spread = th.distributions.Normal(actions_pi.detach(), log_std.exp())
         spread_loss = -spread.log_prob(replay_data.actions).sum(dim=-1).mean()
-        logs.setdefault("train/actor_bc_loss", []).append(bc_loss.item())
         return -q_pi.mean() / q_pi.abs().mean().detach().clamp(min=1e-6) + self.actor_bc_weight * bc_loss + spread_loss
 
     def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
