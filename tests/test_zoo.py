@@ -610,8 +610,14 @@ def test_the_iql_search_space_gives_iql_keywords():
     from sb3_cql.zoo.search_space import sample_iql_params
 
     raw = {"expectile": 0.9, "temperature": 10.0, "gamma": 0.999, "learning_rate": 3e-4, "batch_size": 256,
-           "net_arch": "medium", "reward": "data", "n_steps": 5, "best_of_n": 32}  # fmt: skip
+           "net_arch": "medium", "reward": "data", "n_steps": 5, "best_of_n": 32, "q_agg": "mean",
+           "actor_loss_type": "awr"}  # fmt: skip
     params = sample_iql_params(optuna.trial.FixedTrial(raw), n_actions=9, n_envs=1, additional_args={})
     assert params["policy_kwargs"] == {"net_arch": [256, 256]}
     assert (params["reward_scale"], params["reward_bias"]) == (1.0, 0.0)
+    assert "actor_bc_weight" not in params  # AWR has no anchor
     IQL("MlpPolicy", "Pendulum-v1", **{**params, "policy_kwargs": {"net_arch": [8]}})  # every key is IQL's
+    anchored = {**raw, "actor_loss_type": "ddpg_awr", "actor_bc_weight": 4.0}
+    params = sample_iql_params(optuna.trial.FixedTrial(anchored), n_actions=9, n_envs=1, additional_args={})
+    assert (params["actor_loss_type"], params["actor_bc_weight"]) == ("ddpg_awr", 4.0)
+    IQL("MlpPolicy", "Pendulum-v1", **{**params, "policy_kwargs": {"net_arch": [8]}})

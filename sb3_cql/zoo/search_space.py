@@ -58,7 +58,8 @@ def convert_cql_params(params: dict[str, Any]) -> dict[str, Any]:
 
 def sample_iql_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """Sample IQL's expectile, temperature, discount, learning rate, batch size, network size, the critics' rewards,
-    SB3's n-step returns and best-of-N acting."""
+    SB3's n-step returns, best-of-N acting, the twins' combination and the actor's extraction (with the anchor's weight
+    where the extraction has one)."""
     params = {
         "expectile": trial.suggest_categorical("expectile", [0.5, 0.7, 0.8, 0.9, 0.95]),
         "temperature": trial.suggest_float("temperature", 0.5, 30.0, log=True),
@@ -69,7 +70,11 @@ def sample_iql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "reward": trial.suggest_categorical("reward", list(REWARDS)),
         "n_steps": trial.suggest_categorical("n_steps", N_STEPS),
         "best_of_n": trial.suggest_categorical("best_of_n", [1, 8, 32]),
+        "q_agg": trial.suggest_categorical("q_agg", ["min", "mean"]),
+        "actor_loss_type": trial.suggest_categorical("actor_loss_type", ["awr", "ddpg_bc", "ddpg_awr"]),
     }
+    if params["actor_loss_type"] != "awr":
+        params["actor_bc_weight"] = trial.suggest_float("actor_bc_weight", 0.4, 10.0, log=True)
     return convert_iql_params(params)
 
 
