@@ -54,7 +54,7 @@ def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
 
 
 #: The row of ``results/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is.
-OFFLINE_ROWS = {"iql": ("iql-yaw", IQL)}
+OFFLINE_ROWS = {"iql": ("iql-yaw-ddpgawr4", IQL)}
 
 
 @pytest.mark.parametrize("path", OFFLINE_YAW, ids=lambda path: path.stem)
