@@ -25,6 +25,17 @@ def pendulum_iql(**kwargs) -> IQL:
     return IQL("MlpPolicy", env, dataset=random_rollouts(gym.make("Pendulum-v1"), 300), **settings)
 
 
+def one_recorded_update(model: IQL, batch_size: int):
+    """One gradient step of ``model``: the policy as it was before it, the batch it drew and what it logged."""
+    model._setup_learn(1, None)  # the logger
+    before = copy.deepcopy(model.policy)
+    state = np.random.get_state()
+    batch = model.replay_buffer.sample(batch_size)
+    np.random.set_state(state)  # train() draws this very batch
+    model.train(gradient_steps=1, batch_size=batch_size)
+    return before, batch, model.logger.name_to_value
+
+
 def test_the_expectile_loss_weights_each_side_of_zero_by_hand():
     differences = th.tensor([[2.0], [-1.0], [0.5], [-3.0]])
     by_hand = (0.9 * 4.0 + 0.1 * 1.0 + 0.9 * 0.25 + 0.1 * 9.0) / 4
@@ -39,13 +50,7 @@ def test_one_update_is_the_papers_losses_computed_by_hand(n_steps):
     computation by hand on the batch the step drew, with the networks as they were."""
     model = pendulum_iql(gamma=0.999, expectile=0.8, temperature=2.0, max_weight=5.0, n_steps=n_steps,
                          reward_scale=2.0, reward_bias=-1.0)  # fmt: skip
-    model._setup_learn(1, None)  # the logger
-    before = copy.deepcopy(model.policy)
-    state = np.random.get_state()
-    batch = model.replay_buffer.sample(16)
-    np.random.set_state(state)  # train() draws this very batch
-    model.train(gradient_steps=1, batch_size=16)
-    logged = model.logger.name_to_value
+    before, batch, logged = one_recorded_update(model, 16)
 
     obs, actions = batch.observations, batch.actions
     with th.no_grad():
@@ -105,13 +110,7 @@ def test_one_update_on_the_success_scale_is_the_cross_entropies_computed_by_hand
     env, buffer = sparse_success_buffer()
     model = IQL("MlpPolicy", env, dataset=buffer, gamma=0.999, expectile=0.7, temperature=2.0, n_steps=n_steps,
                 value_loss_type="bce", q_agg="mean", batch_size=32, policy_kwargs=TINY, seed=0)  # fmt: skip
-    model._setup_learn(1, None)
-    before = copy.deepcopy(model.policy)
-    state = np.random.get_state()
-    batch = model.replay_buffer.sample(32)
-    np.random.set_state(state)
-    model.train(gradient_steps=1, batch_size=32)
-    logged = model.logger.name_to_value
+    before, batch, logged = one_recorded_update(model, 32)
 
     def bce(logit: th.Tensor, target: th.Tensor) -> th.Tensor:
         p = th.sigmoid(logit)
@@ -159,13 +158,7 @@ def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_
     actions plus the spread's negative log-likelihood around the detached mean; "ddpg_awr" weights each sample's
     squared error by its advantage weight over the batch's mean weight. The setting is saved with the model."""
     model = pendulum_iql(actor_loss_type=actor_loss_type, actor_bc_weight=2.0, temperature=0.5, max_weight=3.0)
-    model._setup_learn(1, None)
-    before = copy.deepcopy(model.policy)
-    state = np.random.get_state()
-    batch = model.replay_buffer.sample(16)
-    np.random.set_state(state)
-    model.train(gradient_steps=1, batch_size=16)
-    logged = model.logger.name_to_value
+    before, batch, logged = one_recorded_update(model, 16)
 
     with th.no_grad():
         mean_actions, log_std, _ = before.actor.get_action_dist_params(batch.observations)
