@@ -25,6 +25,8 @@ ZOO_KEYS = ("n_timesteps", "n_envs", "normalize", "env_wrapper", "vec_env_wrappe
 #: The hyperparameters whose string values are read as schedules, ``lin_<initial value>``: the zoo's
 #: ``learning_rate``, and our algorithms' ``actor_learning_rate`` (read by :func:`read_schedules`).
 SCHEDULE_KEYS = ("learning_rate", "actor_learning_rate")
+#: Those of :data:`SCHEDULE_KEYS` that the zoo reads itself (``ExperimentManager._preprocess_schedules``).
+ZOO_SCHEDULE_KEYS = ("learning_rate",)
 
 
 def input_error(error: BaseException) -> bool:
@@ -96,10 +98,10 @@ def check_hyperparameters(algo: type, hyperparams: dict[str, Any]) -> None:
 
 
 def read_schedules(hyperparams: dict[str, Any]) -> None:
-    """The ``lin_<initial value>`` strings of :data:`SCHEDULE_KEYS` that the zoo does not read itself (it reads
-    ``learning_rate`` only), as the zoo's linear schedules, after :func:`check_hyperparameters`."""
+    """The ``lin_<initial value>`` strings of :data:`SCHEDULE_KEYS` that the zoo does not read itself
+    (:data:`ZOO_SCHEDULE_KEYS`), as the zoo's linear schedules, after :func:`check_hyperparameters`."""
     from rl_zoo3.utils import SimpleLinearSchedule  # (with the zoo, not with this module)
 
-    for key in SCHEDULE_KEYS[1:]:
-        if isinstance(hyperparams.get(key), str):
+    for key in SCHEDULE_KEYS:
+        if key not in ZOO_SCHEDULE_KEYS and isinstance(hyperparams.get(key), str):
             hyperparams[key] = SimpleLinearSchedule(float(hyperparams[key].partition("_")[2]))
