@@ -6,8 +6,9 @@ One panel a row: the share of the row's closings on a lying cylinder in each 10-
 fingers' closing direction and the cylinder's axis (90: across it), on ``--task`` (PandaForce-v0), with the row's
 mean success rate there. Files named ``ROW-seedN.json`` are one row, pooled over their seeds; any other file is a
 row of its own. The rows are drawn in the order of the files given. Printed: the figure's path and its rows, then a
-line a row: each task's mean success rate over the row's files (and each file's), and the share of ``--task``'s
-closings on a lying cylinder at 60 degrees or more to its axis.
+line a row: each task's mean success rate over the row's files (and each file's) and its failed episodes in which the
+hand never closed (a policy that stops short of the grasp), and the share of ``--task``'s closings on a lying cylinder
+at 60 degrees or more to its axis.
 """
 
 from __future__ import annotations
@@ -55,13 +56,17 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def summary(records: list[dict[str, Any]], task: str) -> str:
-    """One line on a row's records: each task's success rate (the mean over the records, and each one's), and the
-    share of ``task``'s closings on a lying cylinder at 60 degrees or more to its axis."""
+    """One line on a row's records: each task's success rate (the mean over the records, and each one's) and the
+    failed episodes without a closing (summed over the records), and the share of ``task``'s closings on a lying
+    cylinder at 60 degrees or more to its axis."""
     parts = []
     for name in records[0]["tasks"]:
-        rates = [record["tasks"][name]["success_rate"] for record in records if name in record["tasks"]]
+        evaluations = [record["tasks"][name] for record in records if name in record["tasks"]]
+        rates = [evaluation["success_rate"] for evaluation in evaluations]
         each = f" ({' '.join(f'{rate:.2f}' for rate in rates)})" if len(rates) > 1 else ""
-        parts.append(f"{name} {sum(rates) / len(rates):.2f}{each}")
+        never_closed = sum(not episode["success"] and not episode["closing_angles"]
+                           for evaluation in evaluations for episode in evaluation["episodes"])  # fmt: skip
+        parts.append(f"{name} {sum(rates) / len(rates):.2f}{each}, {never_closed} failed without a closing")
     episodes = [episode for record in records for episode in record["tasks"][task]["episodes"]]
     angles = [angle for episode in episodes for angle in episode["closing_angles"] if angle is not None]
     across = sum(angle >= 60 for angle in angles) / len(angles) if angles else float("nan")

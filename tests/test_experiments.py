@@ -23,12 +23,12 @@ import torch as th
 from stable_baselines3 import SAC
 
 import envs
-from sb3_cql import BC, CQL
+from sb3_cql import BC, CQL, IQL
 from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ("acting_noise", "action_drift", "bc_continued", "closing_values", "cql_from_clone", "gripper_reopenings",
-           "q_probe", "values_vs_returns")  # fmt: skip
+SCRIPTS = ("acting_noise", "action_drift", "advantage_weights", "bc_continued", "closing_values", "cql_from_clone",
+           "gripper_reopenings", "q_probe", "values_vs_returns")  # fmt: skip
 FINETUNED_STEPS = 700  # one Panda-v0 episode, cut by the time limit unless it succeeds
 DATASET = "sb3cql/Panda-v0/tiny-regrasp-delta-v0"
 YAW_DATASET = "sb3cql/PandaForce-v0/tiny-regrasp-yaw-delta-v0"
@@ -36,6 +36,7 @@ CHUNK = 2
 TINY = {"batch_size": 16, "bc_steps": 1, "policy_kwargs": {"net_arch": [32]}}
 ACTION_DIM = 9
 FLOAT = r"-?\d+(?:\.\d+)?(?:e-?\d+)?"
+SIGNED = r"[+-]\d+\.\d+"
 FLOATS = rf"\[{FLOAT}(?:, {FLOAT}){{{ACTION_DIM - 1}}}\]"  # one value per action dimension
 
 
@@ -56,7 +57,7 @@ def inputs(tmp_path_factory):
     temporary MINARI_DATASETS_PATH, a clone of it trained for a few steps, saved as ``bc.zip``, and a calibrated CQL
     model fine-tuned online for one episode, ``finetuned.zip`` with its online transitions ``finetuned_buffer.pkl``;
     and 2 PandaForce-v0 episodes of the noisy regrasping controller with random yaws, with a chunked CQL model trained
-    a few steps on them, ``chunked.zip``."""
+    a few steps on them, ``chunked.zip``, and an IQL model, ``iql.zip``."""
     root = tmp_path_factory.mktemp("experiments")
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MINARI_DATASETS_PATH", str(root / "datasets"))
@@ -79,6 +80,10 @@ def inputs(tmp_path_factory):
                       reward_scale=4.0, reward_bias=-2.0, seed=0, **TINY)  # fmt: skip
         chunked.learn(3)
         chunked.save(root / "chunked.zip")
+        iql = IQL("MlpPolicy", gym.make("PandaForce-v0", action_mode="delta"), dataset=YAW_DATASET, gamma=0.999,
+                  n_steps=5, seed=0, batch_size=16, policy_kwargs={"net_arch": [32]})  # fmt: skip
+        iql.learn(3)
+        iql.save(root / "iql.zip")
         yield root
 
 
@@ -89,6 +94,8 @@ def commands(root: Path) -> dict[str, list[str]]:
         "acting_noise": [bc, "--algo", "bc", "--env", "Panda-v0", "--seeds", "0", "--modes", "mean", "sample", "normal:0.1"],
         "action_drift": [bc, "--dataset-id", DATASET, "--kwargs", tiny, "--every", "1", "--probes", "2",
                          "--probe-states", "64", "--log-dir", str(root / "action_drift")],
+        "advantage_weights": [str(root / "iql.zip"), "--dataset", YAW_DATASET, "--episodes", "2", "--weights", "0:1",
+                              "50:10"],
         "bc_continued": [bc, "1", "2", "1e-3", "16", DATASET, "--eval-episodes", "1", "--log-dir", str(root / "bc_continued")],
         "closing_values": [str(root / "chunked.zip"), "--dataset", YAW_DATASET, "--episodes", "2"],
         "cql_from_clone": [bc, "2", "2", json.dumps({**TINY, "clip_backup": True}), DATASET, "--eval-episodes", "1",
@@ -259,20 +266,61 @@ def test_closing_values_refuse_a_model_of_absolute_actions(inputs, tmp_path):
     assert str(exit_.value.code).startswith("error: ") and "does not act in delta actions" in str(exit_.value.code)
 
 
+def test_advantage_weights_reads_the_models_weights_and_others_over_the_datas_steps(runs, inputs):
+    lines = succeeded(runs, "advantage_weights")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+        steps = sum(len(episode.actions) for episode in load_dataset(YAW_DATASET).iterate_episodes())
+    assert lines[0] == f"{inputs / 'iql.zip'} on {YAW_DATASET}, 2 episodes, {steps} steps"
+    assert re.fullmatch(rf"advantage quantiles 0\.01 / 0\.5 / 0\.99 / 0\.999 / max: (?:{SIGNED} / ){{4}}{SIGNED}", lines[1])
+    assert re.fullmatch(rf"Q'\(s, a\) below the returns' floor 0: {FLOAT} of the steps, {FLOAT} below -1, the least {FLOAT}",
+                        lines[2])  # fmt: skip
+    weights = r": mean weight {}, at the clip {}, effective sample size {} of the samples"
+    assert re.fullmatch(r"T 3 M 100 \(the model's\)" + weights.format(FLOAT, FLOAT, FLOAT), lines[3])
+    # at temperature 0 every weight is 1, at the clip of 1: a clone's regression, every sample counting alike
+    assert lines[4] == "T 0 M 1" + weights.format("1.00", "1.000", "1.000")
+    assert re.fullmatch(r"T 50 M 10" + weights.format(FLOAT, FLOAT, FLOAT), lines[5])
+    assert len(lines) == 6
+
+
+def test_advantage_weights_effective_sample_size_and_clip_by_hand():
+    line = load_script("advantage_weights").weights_line
+    # weights 1, 1, 3: (1 + 1 + 3)^2 / (3 * (1 + 1 + 9)) = 25 / 33; clipped at 2: 16 / 18 of the samples, one at the clip
+    advantage = np.array([0.0, 0.0, math.log(3.0)])
+    assert line(advantage, 1.0, 100.0, own=True) == (
+        "T 1 M 100 (the model's): mean weight 1.67, at the clip 0.000, effective sample size 0.758 of the samples"
+    )
+    assert line(advantage, 1.0, 2.0, own=False) == (
+        "T 1 M 2: mean weight 1.33, at the clip 0.333, effective sample size 0.889 of the samples"
+    )
+
+
+def test_advantage_weights_refuse_a_bad_weight_setting(capsys):
+    with pytest.raises(SystemExit):
+        load_script("advantage_weights").main(["model.zip", "--weights", "50"])
+    assert "must be TEMPERATURE:MAX_WEIGHT, such as 50:10, got '50'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        load_script("advantage_weights").main(["model.zip", "--weights", "50:0"])
+    assert "needs a temperature >= 0 and a max weight > 0, got '50:0'" in capsys.readouterr().err
+
+
 def test_alignment_figure_pools_a_rows_seeds(tmp_path, capsys):
-    def record(rate, angles):
+    def record(rate, angles, never_closed=0):
         episodes = [{"seed": 50000 + i, "success": i < 1, "closing_angles": [None, *angles]} for i in range(2)]
+        episodes += [{"seed": 50002 + i, "success": False, "closing_angles": []} for i in range(never_closed)]
         return {"tasks": {"PandaForce-v0": {"success_rate": rate, "episodes": episodes}}}
 
     paths = [tmp_path / name for name in ("cql-seed1.json", "cql-seed2.json", "pid-regrasp-aligned.json")]
-    for path, (rate, angles) in zip(paths, [(0.5, [85.0]), (0.3, [5.0, 45.0]), (0.6, [89.0])], strict=True):
-        path.write_text(json.dumps(record(rate, angles)))
+    for path, settings in zip(paths, [(0.5, [85.0], 2), (0.3, [5.0, 45.0], 1), (0.6, [89.0])], strict=True):
+        path.write_text(json.dumps(record(*settings)))
     main = load_script("alignment_figure").main
     main([*map(str, paths), "--output", str(tmp_path / "figure.png")])
     assert capsys.readouterr().out.splitlines() == [
         f"{tmp_path / 'figure.png'}: 2 rows (cql, pid-regrasp-aligned)",
-        "cql: PandaForce-v0 0.40 (0.50 0.30); PandaForce-v0: 6 closings on a lying cylinder, 0.33 of them at 60-90 deg",
-        "pid-regrasp-aligned: PandaForce-v0 0.60; PandaForce-v0: 2 closings on a lying cylinder, 1.00 of them at 60-90 deg",
+        "cql: PandaForce-v0 0.40 (0.50 0.30), 3 failed without a closing; PandaForce-v0: 6 closings on a lying "
+        "cylinder, 0.33 of them at 60-90 deg",
+        "pid-regrasp-aligned: PandaForce-v0 0.60, 0 failed without a closing; PandaForce-v0: 2 closings on a lying "
+        "cylinder, 1.00 of them at 60-90 deg",
     ]
     assert (tmp_path / "figure.png").read_bytes().startswith(b"\x89PNG")
     with pytest.raises(SystemExit) as exit_:

@@ -340,6 +340,27 @@ def test_a_sparse_task_at_gamma_0_999_backs_up_30_steps_on_the_success_scale():
     assert set(summed.int().flatten().tolist()) <= set(range(1, 31)) and (summed == 30).any()
 
 
+def test_a_target_floor_raises_the_targets_below_it_and_leaves_the_others():
+    """Zero rewards and a value network that says -5 at every state: the targets, -5 times the samples' discounts,
+    sink below the floor of 0, which raises them to it; at +5 they stay r + discount * V(s'), as without a floor."""
+    model = pendulum_iql(gamma=0.999, n_steps=3, reward_scale=0.0, target_floor=0.0)
+    batch = model.replay_buffer.sample(64)
+    last = model.value_net.v_net[-1]
+    with th.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(-5.0)
+        sunk = model.compute_target(batch, batch.discounts)
+        model.target_floor = None
+        unfloored = model.compute_target(batch, batch.discounts)
+        model.target_floor = 0.0
+        last.bias.fill_(5.0)
+        raised = model.compute_target(batch, batch.discounts)
+    assert not batch.dones.any()  # Pendulum's episodes end by the time limit only
+    th.testing.assert_close(unfloored, -5.0 * batch.discounts)
+    assert th.equal(sunk, th.zeros_like(sunk))
+    th.testing.assert_close(raised, 5.0 * batch.discounts)
+
+
 def test_calibrated_cql_at_gamma_0_999_bounds_by_returns_in_the_same_gamma_and_rewards():
     env = spaces_env(spaces.Box(-1.0, 1.0, (1,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32))
     buffer = ReplayBuffer(20, env.observation_space, env.action_space)
@@ -372,6 +393,8 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"q_agg": "max"}, "q_agg must be one of 'min', 'mean', got 'max'"),
         ({"actor_loss_type": "td3"}, "actor_loss_type must be one of 'awr', 'ddpg_bc', 'ddpg_awr', got 'td3'"),
         ({"actor_bc_weight": -1.0}, r"actor_bc_weight must be a (finite )?number >= 0, got -1.0"),
+        ({"target_floor": float("-inf")}, "target_floor must be a finite number, got -inf"),
+        ({"target_floor": "0"}, "target_floor must be a finite number, got '0'"),
         ({"value_loss_type": "bce"}, r'value_loss_type="bce" needs the critics\' rewards .* in \[0, 1\], the data give -1'),
     ],
 )

@@ -120,6 +120,11 @@ class IQL(OfflineSAC):
     :param q_agg: how the twin target critics combine into the value's target and the advantages: ``"min"`` (the
         references') or ``"mean"`` (SHARSA's other choice; the minimum's downward bias compounds over long backups).
         Best-of-N ranks by the minimum either way.
+    :param target_floor: the least TD target the critics learn, in their units (after ``reward_scale`` and
+        ``reward_bias``): a target below it is raised to it. ``None`` (the default, the references') leaves the
+        targets as they are. Rewards of at least 0 give no return below 0 (``reward_bias / (1 - gamma)`` with a
+        negative ``reward_bias``), and a floor there keeps the twins' minimum from sinking the values below every
+        return the data can have over long backups.
     :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
         (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
@@ -179,6 +184,7 @@ class IQL(OfflineSAC):
         reward_bias: float = 0.0,
         value_loss_type: str = "squared",
         q_agg: str = "min",
+        target_floor: float | None = None,
         best_of_n: int = 1,
         normalize_observations: bool | None = False,
         online_fraction: float | None = None,
@@ -210,6 +216,7 @@ class IQL(OfflineSAC):
         self.reward_bias = reward_bias
         self.value_loss_type = value_loss_type
         self.q_agg = q_agg
+        self.target_floor = target_floor
         super().__init__(
             policy,
             env,
@@ -255,6 +262,8 @@ class IQL(OfflineSAC):
         check_non_negative([("max_weight", self.max_weight)], strictly=True)
         check_non_negative([("actor_bc_weight", self.actor_bc_weight)])
         check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
+        if self.target_floor is not None:
+            check_finite([("target_floor", self.target_floor)])
         for name, choices in (
             ("value_loss_type", ("squared", "bce")),
             ("q_agg", ("min", "mean")),
@@ -389,11 +398,13 @@ class IQL(OfflineSAC):
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
         """The critics' TD target, ``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`; the
-        samples' ``discounts`` for n-step returns, else ``gamma``); on the success scale ``V(s')`` is the value
-        network's sigmoid and the target is kept in [0, 1] (a reward of 1 that does not end the episode, met online,
-        would take it above)."""
+        samples' ``discounts`` for n-step returns, else ``gamma``), raised to ``target_floor`` where it is set; on the
+        success scale ``V(s')`` is the value network's sigmoid and the target is kept in [0, 1] (a reward of 1 that
+        does not end the episode, met online, would take it above)."""
         next_values = self.as_values(self.value_net(replay_data.next_observations))
         target = self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
+        if self.target_floor is not None:
+            target = target.clamp(min=self.target_floor)
         return target.clamp(0.0, 1.0) if self.value_loss_type == "bce" else target
 
     def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, description: str) -> float:
