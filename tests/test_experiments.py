@@ -28,7 +28,7 @@ from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = ("acting_noise", "action_drift", "advantage_weights", "bc_continued", "closing_values", "cql_from_clone",
-           "gripper_reopenings", "q_probe", "values_vs_returns")  # fmt: skip
+           "grasp_stalls", "gripper_reopenings", "q_probe", "values_vs_returns")  # fmt: skip
 FINETUNED_STEPS = 700  # one Panda-v0 episode, cut by the time limit unless it succeeds
 DATASET = "sb3cql/Panda-v0/tiny-regrasp-delta-v0"
 YAW_DATASET = "sb3cql/PandaForce-v0/tiny-regrasp-yaw-delta-v0"
@@ -100,6 +100,8 @@ def commands(root: Path) -> dict[str, list[str]]:
         "closing_values": [str(root / "chunked.zip"), "--dataset", YAW_DATASET, "--episodes", "2"],
         "cql_from_clone": [bc, "2", "2", json.dumps({**TINY, "clip_backup": True}), DATASET, "--eval-episodes", "1",
                            "--log-dir", str(root / "cql_from_clone")],
+        "grasp_stalls": [str(root / "iql.zip"), "--env", "Panda-v0", "--seeds", "0", "--dataset", YAW_DATASET,
+                         "--episodes", "2"],
         "gripper_reopenings": [DATASET],
         "q_probe": ["2", tiny, "--dataset-id", DATASET, "--probe-states", "64", "--log-dir", str(root / "q_probe")],
         "values_vs_returns": [str(root / "finetuned.zip"), str(root / "finetuned_buffer.pkl"), "--offline-states", "64"],
@@ -302,6 +304,35 @@ def test_advantage_weights_refuse_a_bad_weight_setting(capsys):
     with pytest.raises(SystemExit):
         load_script("advantage_weights").main(["model.zip", "--weights", "50:0"])
     assert "needs a temperature >= 0 and a max weight > 0, got '50:0'" in capsys.readouterr().err
+
+
+def test_grasp_stalls_count_the_datas_closings_by_alignment_and_the_policys_stalls(runs, inputs):
+    lines = succeeded(runs, "grasp_stalls")
+    assert lines[0] == f"{YAW_DATASET}, 2 episodes: open hand over an upright cylinder by alignment error"
+    bands = [re.fullmatch(r"  ([\d.]+)-([\d.]+) cm: (\d+) steps, (-|[01]\.\d\d) close", line) for line in lines[1:5]]
+    assert [(band[1], band[2]) for band in bands] == [("0", "1"), ("1", "1.5"), ("1.5", "2.5"), ("2.5", "4")]
+    # the regrasping controller closes once aligned within 1 cm, and never before
+    assert int(bands[0][3]) > 0 and bands[0][4] == "1.00"
+    assert all(band[4] in ("-", "0.00") for band in bands[1:])
+    match = re.fullmatch(rf"{re.escape(str(inputs / 'iql.zip'))} on Panda-v0, 1 episodes \(seeds 0-0\): success "
+                         r"([01]\.00), ([01]) stalls", lines[5])  # fmt: skip
+    assert match is not None, lines[5]
+    if match[2] == "1":  # a stall, with its reading (an untrained policy seldom closes its hand on the object)
+        assert re.fullmatch(r"  stalls at their last step: alignment error .+, critics' value of their action minus "
+                            rf"closing {SIGNED} \(mean; positive at [01] of 1\)", lines[6])  # fmt: skip
+    assert len(lines) == 6 + int(match[2])
+
+
+def test_grasp_stalls_alignment_error_and_summary_by_hand():
+    script = load_script("grasp_stalls")
+    observation = np.zeros((1, 29))
+    observation[0, envs.OBSERVATION_SLICES["ee_position"]] = [0.10, 0.20, 0.30]
+    observation[0, envs.OBSERVATION_SLICES["object_position"]] = [0.104, 0.19, 0.305]
+    np.testing.assert_allclose(script.alignment_errors(observation), [0.01])  # the largest offset, along y
+    assert script.stalls_line([(0.004, 0.2, 0.1), (0.012, 0.4, -0.05), (0.02, 0.0, None)]) == (
+        "  stalls at their last step: alignment error 1.2 cm (median; 0.4-2.0), gripper command +0.20 (mean; +0.00 to "
+        "+0.40), critics' value of their action minus closing +0.025 (mean; positive at 1 of 2)"
+    )
 
 
 def test_alignment_figure_pools_a_rows_seeds(tmp_path, capsys):
