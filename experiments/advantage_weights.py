@@ -16,10 +16,10 @@ rewards of at least 0, as the tasks' are): how often, and how far, they sink bel
 Printed::
 
     MODEL on DATASET, 200 episodes, 138516 steps
-    advantage quantiles 0.01 / 0.5 / 0.99 / 0.999 / max: -0.09 / -0.00 / +0.08 / +5.74 / +79.5
-    Q'(s, a) below the returns' floor 0.0: 0.62 of the steps, 0.01 below -1.0, the least -81.0
-    T 50 M 100 (the model's): mean weight 2.33, at the clip 0.009, effective sample size 0.051 of the samples
-    T 50 M 10: mean weight 1.29, at the clip 0.024, effective sample size 0.342 of the samples
+    advantage quantiles 0.01 / 0.5 / 0.99 / 0.999 / max: -0.12 / -0.00 / +0.10 / +4.29 / +10.1
+    Q'(s, a) below the returns' floor 0: 0.98 of the steps, 0.01 below -1, the least -82.3
+    T 50 M 100 (the model's): mean weight 2.69, at the clip 0.011, effective sample size 0.056 of the samples
+    T 50 M 10: mean weight 1.42, at the clip 0.029, effective sample size 0.363 of the samples
 
 Nothing is written; torch runs ``--threads`` threads (1 by default).
 """
