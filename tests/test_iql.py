@@ -303,6 +303,34 @@ def mean_of(model, observation):
     return mean_actions.numpy()[0]
 
 
+def test_an_averaged_actor_moves_by_its_tau_acts_for_the_model_and_is_saved_with_it(tmp_path):
+    """With ``actor_average_tau`` the average starts as the actor (the normaliser's statistics too), each of the
+    actor's steps moves it by tau (average' = 0.75 * average + 0.25 * actor), and predict, save and load use it."""
+    model = pendulum_iql(actor_average_tau=0.25, normalize_observations=True)
+    average = model.policy.actor_average
+    assert average is not None and model.policy.acting_actor is average
+    for mine, actors in zip(average.state_dict().values(), model.actor.state_dict().values(), strict=True):
+        th.testing.assert_close(mine, actors)
+    assert not th.equal(average.features_extractor.mean, th.zeros_like(average.features_extractor.mean))
+    assert not any(parameter.requires_grad for parameter in average.parameters())
+    before, _, _ = one_recorded_update(model, 16)
+    steps = zip(average.parameters(), model.actor.parameters(), before.actor_average.parameters(), strict=True)
+    for mine, actors, earlier in steps:
+        th.testing.assert_close(mine, 0.75 * earlier + 0.25 * actors)
+    model.learn(40)
+    observation = np.array([0.3, -0.2, 0.5], dtype=np.float32)
+    with th.no_grad():
+        features = th.as_tensor(observation)[None]
+        averaged = model.policy.unscale_action(th.tanh(average.get_action_dist_params(features)[0]).numpy())[0]
+    action, _ = model.predict(observation, deterministic=True)
+    np.testing.assert_allclose(action, averaged, rtol=1e-5)
+    assert not np.allclose(action, model.policy.unscale_action(np.tanh(mean_of(model, observation))), rtol=1e-3)
+    model.save(tmp_path / "iql")
+    loaded = IQL.load(tmp_path / "iql")
+    assert loaded.actor_average_tau == 0.25 and loaded.policy.acting_actor is loaded.policy.actor_average
+    np.testing.assert_array_equal(loaded.predict(observation, deterministic=True)[0], action)
+
+
 def test_best_of_n_ranks_whole_chunks_and_runs_them_open_loop():
     model = pendulum_iql(best_of_n=4, action_chunk=3)
     model.learn(10)
@@ -395,6 +423,8 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"actor_bc_weight": -1.0}, r"actor_bc_weight must be a (finite )?number >= 0, got -1.0"),
         ({"target_floor": float("-inf")}, "target_floor must be a finite number, got -inf"),
         ({"target_floor": "0"}, "target_floor must be a finite number, got '0'"),
+        ({"actor_average_tau": 0.0}, r"actor_average_tau must be a number in \(0, 1\] or None, got 0.0"),
+        ({"actor_average_tau": "0.01"}, r"actor_average_tau must be a number in \(0, 1\] or None, got '0.01'"),
         ({"value_loss_type": "bce"}, r'value_loss_type="bce" needs the critics\' rewards .* in \[0, 1\], the data give -1'),
     ],
 )

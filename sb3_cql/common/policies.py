@@ -47,6 +47,9 @@ class OfflinePolicy(SACPolicy):
     same action whatever came before (evaluations replay exactly); with ``deterministic=False`` from torch's global
     generator.
 
+    The policy acts with :attr:`acting_actor`, the trained actor unless a subclass keeps another (IQL's average of
+    the actor's weights).
+
     :param action_chunk: actions per chunk (1: SAC's policy, one action a state).
     :param critic_layer_norm: LayerNorm after each hidden layer of the Q-networks.
     :param best_of_n: candidate actions ranked by the critics at each decision (1: the actor's own action).
@@ -99,9 +102,15 @@ class OfflinePolicy(SACPolicy):
             "best_of_n": self.best_of_n,
         }
 
+    @property
+    def acting_actor(self) -> sac_policies.Actor:
+        """The actor the policy acts with: :attr:`actor` (a policy that acts with another, such as an average of
+        the actor's weights, overrides it)."""
+        return self.actor
+
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
         if self.best_of_n == 1:
-            return super()._predict(observation, deterministic)
+            return self.acting_actor(observation, deterministic)
         return self.best_of_n_actions(observation, self.best_of_n, deterministic)
 
     def best_of_n_actions(self, observation: th.Tensor | dict[str, th.Tensor], n: int, deterministic: bool) -> th.Tensor:
@@ -113,7 +122,7 @@ class OfflinePolicy(SACPolicy):
         :param deterministic: draw the candidates' noise from generators seeded by each observation's bytes (the same
             observation, the same action), else from torch's global generator.
         """
-        mean_actions, log_std, _ = self.actor.get_action_dist_params(observation)
+        mean_actions, log_std, _ = self.acting_actor.get_action_dist_params(observation)
         batch_size, action_dim = mean_actions.shape
         if deterministic:
             noise = th.stack([th.randn(n, action_dim, generator=_generator(seed)) for seed in _observation_seeds(observation)])

@@ -125,6 +125,12 @@ class IQL(OfflineSAC):
         targets as they are. Rewards of at least 0 give no return below 0 (``reward_bias / (1 - gamma)`` with a
         negative ``reward_bias``), and a floor there keeps the twins' minimum from sinking the values below every
         return the data can have over long backups.
+    :param actor_average_tau: act with an exponential moving average of the actor's weights: after each of the
+        actor's steps the average moves towards it by this Polyak coefficient (``average = (1 - actor_average_tau) *
+        average + actor_average_tau * actor``; 0.001 averages over about the last 1,000 steps), and the model acts with
+        the average (``predict``, evaluations, best-of-N's candidates; :class:`~sb3_cql.iql.policies.IQLPolicy`'s
+        ``actor_average``), while the actor goes on learning. It damps the swings of an actor that follows a moving
+        critic between one checkpoint and the next. ``None`` (the default, the references'): act with the actor.
     :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
         (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
@@ -185,6 +191,7 @@ class IQL(OfflineSAC):
         value_loss_type: str = "squared",
         q_agg: str = "min",
         target_floor: float | None = None,
+        actor_average_tau: float | None = None,
         best_of_n: int = 1,
         normalize_observations: bool | None = False,
         online_fraction: float | None = None,
@@ -217,6 +224,7 @@ class IQL(OfflineSAC):
         self.value_loss_type = value_loss_type
         self.q_agg = q_agg
         self.target_floor = target_floor
+        self.actor_average_tau = actor_average_tau
         super().__init__(
             policy,
             env,
@@ -264,6 +272,9 @@ class IQL(OfflineSAC):
         check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
         if self.target_floor is not None:
             check_finite([("target_floor", self.target_floor)])
+        tau = self.actor_average_tau
+        if tau is not None and not (isinstance(tau, (int, float)) and not isinstance(tau, bool) and 0 < tau <= 1):
+            raise SettingError(f"actor_average_tau must be a number in (0, 1] or None, got {tau!r}")
         for name, choices in (
             ("value_loss_type", ("squared", "bce")),
             ("q_agg", ("min", "mean")),
@@ -276,6 +287,11 @@ class IQL(OfflineSAC):
         if not issubclass(self.policy_class, IQLPolicy):
             name = getattr(self.policy_class, "__name__", self.policy_class)
             raise SettingError(f"IQL needs a policy with a value network (sb3_cql.iql.policies), got {name}")
+
+    def _setup_model(self) -> None:
+        if self.actor_average_tau is not None:
+            self.policy_kwargs["average_actor"] = True  # saved with the model, so a loaded one acts with its average
+        super()._setup_model()
 
     def _create_aliases(self) -> None:
         super()._create_aliases()
@@ -339,6 +355,8 @@ class IQL(OfflineSAC):
                 imitation_weights = weights / weights.mean() if self.actor_loss_type == "ddpg_awr" else None
                 actor_loss = self.ddpg_bc_actor_loss(replay_data, logs, imitation_weights)
             self._step(self.actor.optimizer, actor_loss, "IQL's actor loss")
+            if self.actor_average_tau is not None and self.policy.actor_average is not None:
+                polyak_update(self.actor.parameters(), self.policy.actor_average.parameters(), self.actor_average_tau)
 
             with th.no_grad():
                 target_q_values = self.compute_target(replay_data, discounts)

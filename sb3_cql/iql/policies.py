@@ -114,9 +114,23 @@ def gaussian_actions(mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tens
 class IQLPolicy(OfflinePolicy):
     """SAC's policy (``MlpPolicy``, optionally on action chunks and acting by best-of-N:
     :class:`~sb3_cql.common.policies.OfflinePolicy`) with :class:`IQLActor` and a :class:`ValueNetwork`
-    (``value_net``, its own Adam optimizer at the critics' learning rate) of the critics' architecture."""
+    (``value_net``, its own Adam optimizer at the critics' learning rate) of the critics' architecture.
+
+    With ``average_actor`` it also keeps ``actor_average``, an :class:`IQLActor` that starts as a copy of the actor,
+    gets no gradient, and is the one the policy acts with (:attr:`acting_actor`); the algorithm moves it towards the
+    actor after each of the actor's steps (IQL's ``actor_average_tau``). Both are saved with the policy.
+
+    :param average_actor: keep and act with ``actor_average``.
+    :param args: :class:`~sb3_cql.common.policies.OfflinePolicy`'s arguments.
+    :param kwargs: its keywords.
+    """
 
     value_net: ValueNetwork
+    actor_average: IQLActor | None
+
+    def __init__(self, *args: Any, average_actor: bool = False, **kwargs: Any) -> None:
+        self.average_actor = average_actor  # read by _build, which the base's __init__ calls
+        super().__init__(*args, **kwargs)
 
     def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> IQLActor:
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
@@ -138,12 +152,25 @@ class IQLPolicy(OfflinePolicy):
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)
+        self.actor_average = None
+        if self.average_actor:
+            self.actor_average = self.make_actor()
+            self.actor_average.load_state_dict(self.actor.state_dict())
+            self.actor_average.requires_grad_(False)
         self.value_net = self.make_value_net()
         self.value_net.optimizer = self.optimizer_class(
             self.value_net.parameters(),
             lr=lr_schedule(1),  # type: ignore[call-arg]
             **self.optimizer_kwargs,
         )
+
+    @property
+    def acting_actor(self) -> IQLActor:
+        """``actor_average`` with ``average_actor``, else the actor."""
+        return self.actor if self.actor_average is None else self.actor_average
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "average_actor": self.average_actor}
 
     def candidate_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tensor) -> th.Tensor:
         """Best-of-N's candidates from the distribution the actor fits (:class:`IQLActor`)."""
@@ -152,6 +179,8 @@ class IQLPolicy(OfflinePolicy):
     def set_training_mode(self, mode: bool) -> None:
         super().set_training_mode(mode)
         self.value_net.set_training_mode(mode)
+        if self.actor_average is not None:
+            self.actor_average.set_training_mode(mode)
 
 
 MlpPolicy = IQLPolicy
