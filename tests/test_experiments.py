@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch as th
+from rollouts import random_rollouts
 from stable_baselines3 import SAC
 
 import envs
@@ -469,7 +470,32 @@ def test_values_vs_returns_says_in_one_line_that_a_model_is_missing(tmp_path):
     assert str(exit_.value.code).startswith("error: ") and "\n" not in str(exit_.value.code)
 
 
-@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure", "finetune_record"])
+def test_training_log_reads_what_a_training_printed_at_the_chosen_steps(tmp_path, capsys):
+    """A real IQL training at verbose 1 (tables every 2 gradient steps), its stdout saved: the script picks the table
+    nearest each multiple of --every and prints the keys' values as SB3 printed them, and refuses a missing key."""
+    model = IQL("MlpPolicy", gym.make("Pendulum-v1"), dataset=random_rollouts(gym.make("Pendulum-v1"), 50), batch_size=8,
+                policy_kwargs={"net_arch": [8]}, verbose=1, seed=0)  # fmt: skip
+    model.learn(6, log_interval=2)
+    log = tmp_path / "train.log"
+    log.write_text(capsys.readouterr().out)
+    script = load_script("training_log")
+    tables = script.read_tables(log.read_text())
+    assert [table["time/total_timesteps"] for table in tables] == ["2", "4", "6"]
+    assert [table["train/n_updates"] for table in tables] == ["2", "4", "6"]
+    script.main([str(log), "--keys", "train/n_updates", "train/critic_loss", "--every", "3"])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == str(log)
+    assert [line.split(":")[0] for line in lines[1:]] == ["  step 2", "  step 6"]  # 3 is nearest 2 (first), 6 is 6
+    assert lines[2] == f"  step 6: train/n_updates 6, train/critic_loss {tables[-1]['train/critic_loss']}"
+    with pytest.raises(SystemExit) as exit_:
+        script.main([str(log), "--keys", "train/nothing"])
+    assert str(exit_.value.code).startswith(f"{log}: no train/nothing in its tables; they have ")
+    with pytest.raises(SystemExit) as exit_:
+        script.main([str(tmp_path / "missing.log")])
+    assert "missing.log: cannot read it" in str(exit_.value.code)
+
+
+@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure", "finetune_record", "training_log"])
 def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(["--help"])
