@@ -305,7 +305,8 @@ def mean_of(model, observation):
 
 def test_an_averaged_actor_moves_by_its_tau_acts_for_the_model_and_is_saved_with_it(tmp_path):
     """With ``actor_average_tau`` the average starts as the actor (the normaliser's statistics too), each of the
-    actor's steps moves it by tau (average' = 0.75 * average + 0.25 * actor), and predict, save and load use it."""
+    actor's steps moves it by tau (average' = 0.75 * average + 0.25 * actor), and predict, save and load use it; the
+    critics and the value are those of the same seed without it, step for step (no loss of theirs reads the actor)."""
     model = pendulum_iql(actor_average_tau=0.25, normalize_observations=True)
     average = model.policy.actor_average
     assert average is not None and model.policy.acting_actor is average
@@ -318,6 +319,12 @@ def test_an_averaged_actor_moves_by_its_tau_acts_for_the_model_and_is_saved_with
     for mine, actors, earlier in steps:
         th.testing.assert_close(mine, 0.75 * earlier + 0.25 * actors)
     model.learn(40)
+    plain = pendulum_iql(normalize_observations=True)  # the same seed, its generators set again
+    one_recorded_update(plain, 16)
+    plain.learn(40)
+    for network in ("critic", "value_net"):
+        mine, without = getattr(model.policy, network).state_dict(), getattr(plain.policy, network).state_dict()
+        assert all(th.equal(mine[key], without[key]) for key in without)
     observation = np.array([0.3, -0.2, 0.5], dtype=np.float32)
     with th.no_grad():
         features = th.as_tensor(observation)[None]

@@ -152,17 +152,17 @@ class IQLPolicy(OfflinePolicy):
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)
-        self.actor_average = None
-        if self.average_actor:
-            self.actor_average = self.make_actor()
-            self.actor_average.load_state_dict(self.actor.state_dict())
-            self.actor_average.requires_grad_(False)
         self.value_net = self.make_value_net()
         self.value_net.optimizer = self.optimizer_class(
             self.value_net.parameters(),
             lr=lr_schedule(1),  # type: ignore[call-arg]
             **self.optimizer_kwargs,
         )
+        self.actor_average = None
+        if self.average_actor:  # built last, so the other networks start as they would without it
+            self.actor_average = self.make_actor()
+            self.actor_average.load_state_dict(self.actor.state_dict())
+            self.actor_average.requires_grad_(False)
 
     @property
     def acting_actor(self) -> IQLActor:
