@@ -336,6 +336,13 @@ def test_an_averaged_actor_moves_by_its_tau_acts_for_the_model_and_is_saved_with
     loaded = IQL.load(tmp_path / "iql")
     assert loaded.actor_average_tau == 0.25 and loaded.policy.acting_actor is loaded.policy.actor_average
     np.testing.assert_array_equal(loaded.predict(observation, deterministic=True)[0], action)
+    plain.save(tmp_path / "plain")  # trained without an average, loaded with one: it starts as the actor
+    averaged = IQL.load(tmp_path / "plain", actor_average_tau=0.25)
+    for mine, actors in zip(averaged.policy.actor_average.parameters(), averaged.actor.parameters(), strict=True):
+        th.testing.assert_close(mine, actors)
+    np.testing.assert_array_equal(
+        averaged.predict(observation, deterministic=True)[0], plain.predict(observation, deterministic=True)[0]
+    )
 
 
 def test_best_of_n_ranks_whole_chunks_and_runs_them_open_loop():

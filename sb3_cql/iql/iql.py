@@ -355,7 +355,7 @@ class IQL(OfflineSAC):
                 imitation_weights = weights / weights.mean() if self.actor_loss_type == "ddpg_awr" else None
                 actor_loss = self.ddpg_bc_actor_loss(replay_data, logs, imitation_weights)
             self._step(self.actor.optimizer, actor_loss, "IQL's actor loss")
-            if self.actor_average_tau is not None and self.policy.actor_average is not None:
+            if self.actor_average_tau is not None:  # the policy then keeps an average (_setup_model)
                 polyak_update(self.actor.parameters(), self.policy.actor_average.parameters(), self.actor_average_tau)
 
             with th.no_grad():

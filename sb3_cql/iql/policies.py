@@ -172,6 +172,16 @@ class IQLPolicy(OfflinePolicy):
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {**super()._get_constructor_parameters(), "average_actor": self.average_actor}
 
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        """``nn.Module``'s; parameters saved without an average (a model trained without ``actor_average_tau``,
+        loaded with it) start the average as a copy of their actor."""
+        if self.actor_average is not None and not any(key.startswith("actor_average.") for key in state_dict):
+            average = {
+                "actor_average." + key[len("actor.") :]: value for key, value in state_dict.items() if key.startswith("actor.")
+            }
+            state_dict = {**state_dict, **average}
+        return super().load_state_dict(state_dict, strict, assign)
+
     def candidate_actions(self, mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tensor) -> th.Tensor:
         """Best-of-N's candidates from the distribution the actor fits (:class:`IQLActor`)."""
         return gaussian_actions(mean_actions, log_std, noise)
