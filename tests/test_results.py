@@ -8,6 +8,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+import yaml
 
 import envs  # noqa: F401  (registers the tasks)
 from sb3_cql import CQL, IQL
@@ -53,21 +54,33 @@ def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
     env.close()
 
 
-#: The row of ``results/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is.
-OFFLINE_ROWS = {"iql": ("iql-yaw-ddpgawr4", IQL)}
+#: The row of ``results/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is, its class, and
+#: the zoo configuration in ``hyperparams/`` that trains it.
+OFFLINE_ROWS = {"iql": ("iql-yaw-ddpgawr4-40k-mfa", IQL, "iql_yaw_long.yml")}
+#: Keys of a zoo configuration that are not the algorithm's attributes of the same name.
+ZOO_ONLY_KEYS = {"policy", "dataset", "env_kwargs", "n_timesteps", "policy_kwargs", "monitor_kwargs"} | {
+    "eval_freq",
+    "n_eval_episodes",
+}
 
 
 @pytest.mark.parametrize("path", OFFLINE_YAW, ids=lambda path: path.stem)
 def test_a_committed_offline_model_loads_with_its_class_and_acts_in_its_task(path):
-    """The final model of its row's training (20,000 gradient steps), with the row's evaluation record beside it, and
-    acting with its own action (``best_of_n`` 1) in the delta actions it was trained in."""
+    """The final model of its row's training, with the row's evaluation record beside it, trained as its zoo
+    configuration says (its steps and every keyword of the algorithm), and acting with its own action (``best_of_n``
+    1) in the delta actions it was trained in."""
     task, algo, seed = re.fullmatch(r"offline-yaw-(.+)-([a-z]+)-seed(\d+)", path.stem).groups()
-    row, algorithm = OFFLINE_ROWS[algo]
+    row, algorithm, config_file = OFFLINE_ROWS[algo]
     record = json.loads((RESULTS / "offline-yaw" / f"{row}-seed{seed}.json").read_text())
     assert record["algo"] == algo and all(len(record["tasks"][name]["episodes"]) == 100 for name in record["tasks"])
+    config = yaml.safe_load((RESULTS.parent / "hyperparams" / config_file).read_text())[task]
     model = algorithm.load(path)
-    assert model.num_timesteps == 20_000 and model.best_of_n == 1
-    env = gym.make(task, action_mode=record["tasks"][task]["action_mode"])
+    assert model.num_timesteps == config["n_timesteps"] and model.best_of_n == 1
+    for key in config.keys() - ZOO_ONLY_KEYS:
+        value = getattr(model, key)
+        assert (value(1.0) if callable(value) else value) == config[key], key  # a rate is saved as SB3's schedule
+    env = gym.make(task, **config["env_kwargs"])
+    assert config["env_kwargs"]["action_mode"] == record["tasks"][task]["action_mode"]
     observation, _ = env.reset(seed=0)
     action, _ = model.predict(observation, deterministic=True)
     assert env.action_space.contains(action.astype(env.action_space.dtype))
