@@ -58,7 +58,13 @@ def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
 #: the zoo configuration in ``hyperparams/`` that trains it.
 OFFLINE_ROWS = {"iql": ("iql-yaw-ddpgawr4-40k-mfa", IQL, "iql_yaw_long.yml")}
 #: Keys of a zoo configuration that are not the algorithm's attributes of the same name.
-ZOO_ONLY_KEYS = {"policy", "dataset", "env_kwargs", "n_timesteps", "policy_kwargs", "monitor_kwargs"} | {
+ZOO_ONLY_KEYS = {
+    "policy",
+    "dataset",
+    "env_kwargs",
+    "n_timesteps",
+    "policy_kwargs",
+    "monitor_kwargs",
     "eval_freq",
     "n_eval_episodes",
 }
