@@ -278,6 +278,49 @@ def test_best_of_n_acts_with_the_candidate_a_known_critic_values_most(algorithm)
     assert (many[:, 0] > 0.5).all()  # the tails of the actor's spread, where one sample rarely reaches
 
 
+@pytest.mark.parametrize("algorithm", [IQL, CQL])
+def test_best_of_n_scale_draws_the_candidates_with_a_narrower_spread_around_the_actors_mean(algorithm):
+    """With ``best_of_n_scale`` s the candidates are the actor's mean plus s times its spread: under the known critic
+    (Q = a_0) the chosen action is the argmax of those candidates, and a tiny scale returns the actor's own action."""
+    env = LinearCriticEnv()
+    kwargs = {"cql_n_actions": 2} if algorithm is CQL else {}
+    model = algorithm("MlpPolicy", env, buffer_size=10, policy_kwargs={"net_arch": []}, best_of_n=16,
+                      best_of_n_scale=0.25, seed=0, **kwargs)  # fmt: skip
+    with th.no_grad():
+        for q_net in model.critic.q_networks:
+            q_net[0].weight.zero_()
+            q_net[0].weight[0, 2] = 1.0
+    policy = model.policy
+    observations = th.tensor([[0.1, -0.3], [0.5, 0.2]])
+    mean_actions, log_std, _ = policy.actor.get_action_dist_params(observations)
+    th.manual_seed(3)
+    chosen = policy.best_of_n_actions(observations, 16, deterministic=False)
+    th.manual_seed(3)
+    noise = th.randn(2 * 16, 3)
+    narrow = log_std.repeat_interleave(16, 0) + np.log(0.25)
+    candidates = policy.candidate_actions(mean_actions.repeat_interleave(16, 0), narrow, noise).reshape(2, 16, 3)
+    th.testing.assert_close(chosen, candidates[th.arange(2), candidates[:, :, 0].argmax(dim=1)])
+    wide = policy.candidate_actions(mean_actions.repeat_interleave(16, 0), log_std.repeat_interleave(16, 0), noise)
+    assert not th.allclose(chosen, wide.reshape(2, 16, 3)[th.arange(2), wide.reshape(2, 16, 3)[:, :, 0].argmax(dim=1)])
+    policy.best_of_n_scale = 1e-6
+    own = policy.actor(observations, deterministic=True)
+    th.testing.assert_close(policy.best_of_n_actions(observations, 16, deterministic=True), own, atol=1e-4, rtol=0)
+
+
+def test_best_of_n_scale_is_saved_with_the_model_and_changed_by_load(tmp_path):
+    model = pendulum_iql(best_of_n=8, best_of_n_scale=0.1)
+    model.save(tmp_path / "iql")
+    assert IQL.load(tmp_path / "iql").policy.best_of_n_scale == 0.1
+    wider = IQL.load(tmp_path / "iql", best_of_n_scale=2.0)
+    assert wider.best_of_n_scale == wider.policy.best_of_n_scale == 2.0
+    observation = np.array([0.3, -0.2, 0.5], dtype=np.float32)
+    narrow, _ = model.predict(observation, deterministic=True)
+    assert not np.allclose(wider.predict(observation, deterministic=True)[0], narrow)
+    for bad in (0, -0.5, float("inf"), "0.1"):
+        with pytest.raises(SettingError, match="best_of_n_scale must be a"):
+            pendulum_iql(best_of_n_scale=bad)
+
+
 def test_best_of_n_is_saved_with_the_model_changed_by_load_and_repeatable(tmp_path):
     model = pendulum_iql(best_of_n=8)
     model.learn(20)

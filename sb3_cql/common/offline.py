@@ -266,6 +266,9 @@ class OfflineSAC(SAC):
         each decision and takes the one its critics value most (:class:`~sb3_cql.common.policies.OfflinePolicy`);
         saved with the model, so every evaluation acts that way; ``load(path, best_of_n=N)`` changes it. ``1`` (the
         default): the actor's own action.
+    :param best_of_n_scale: the spread of best-of-N's candidates: their standard deviation is the actor's times
+        ``best_of_n_scale`` (``0.1``: candidates near the actor's mean). Saved with the model, changed by
+        ``load(path, best_of_n_scale=S)``. ``1`` (the default): samples of the actor's own distribution.
     :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``action_noise``, ``seed``, ...).
     """
 
@@ -294,6 +297,7 @@ class OfflineSAC(SAC):
         deterministic_rollouts: bool = False,
         action_chunk: int = 1,
         best_of_n: int = 1,
+        best_of_n_scale: float = 1.0,
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
@@ -301,7 +305,8 @@ class OfflineSAC(SAC):
         check_keywords(type(self).__name__, kwargs, inspect.signature(SAC.__init__).parameters)
         check_count("action_chunk", action_chunk, 1)
         check_count("best_of_n", best_of_n, 1)
-        self.best_of_n = best_of_n
+        check_non_negative([("best_of_n_scale", best_of_n_scale)], strictly=True)
+        self.best_of_n, self.best_of_n_scale = best_of_n, best_of_n_scale
         if action_chunk > 1 and kwargs.get("n_steps", 1) not in (1, action_chunk):
             raise SettingError(f"n_steps={kwargs['n_steps']} with action_chunk={action_chunk}: a chunk's backup spans "
                                f"its {action_chunk} steps (n_steps is the chunk's length)")  # fmt: skip
@@ -374,6 +379,7 @@ class OfflineSAC(SAC):
         check_count("online_buffer_size", self.online_buffer_size, 1)
         check_count("action_chunk", self.action_chunk, 1)
         check_count("best_of_n", getattr(self, "best_of_n", 1), 1)
+        check_non_negative([("best_of_n_scale", getattr(self, "best_of_n_scale", 1.0))], strictly=True)
         fraction = self.online_fraction
         if fraction is not None and not (isinstance(fraction, numbers.Real) and 0.0 <= fraction <= 1.0):
             raise SettingError(f"online_fraction must be None (offline training) or in [0, 1], got {fraction!r}")
@@ -397,6 +403,12 @@ class OfflineSAC(SAC):
                 raise SettingError(f"best_of_n > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
                                    f"got {self.policy_class.__name__}")  # fmt: skip
             self.policy_kwargs["best_of_n"] = best_of_n
+        best_of_n_scale = getattr(self, "best_of_n_scale", 1.0)
+        if best_of_n_scale != 1.0 or "best_of_n_scale" in self.policy_kwargs:  # also a changed scale given to load()
+            if not issubclass(self.policy_class, OfflinePolicy):
+                raise SettingError(f"best_of_n_scale needs a policy of sb3_cql.common.policies (OfflinePolicy), "
+                                   f"got {self.policy_class.__name__}")  # fmt: skip
+            self.policy_kwargs["best_of_n_scale"] = best_of_n_scale
         if chunked:
             if not issubclass(self.policy_class, OfflinePolicy):
                 raise SettingError(f"action_chunk > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "

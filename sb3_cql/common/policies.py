@@ -4,6 +4,7 @@ features extractor and optional action chunks (:class:`OfflinePolicy`)."""
 from __future__ import annotations
 
 import hashlib
+import math
 from typing import Any
 
 import numpy as np
@@ -45,7 +46,8 @@ class OfflinePolicy(SACPolicy):
     one the critics value most (the minimum of the twins), :meth:`best_of_n_actions`. With ``deterministic=True`` the
     candidates' noise is drawn from a generator seeded by the observation's bytes, so the same observation gives the
     same action whatever came before (evaluations replay exactly); with ``deterministic=False`` from torch's global
-    generator.
+    generator. ``best_of_n_scale`` narrows (or widens) the candidates' spread around the actor's mean: their standard
+    deviation is the actor's times ``best_of_n_scale``.
 
     The policy acts with :attr:`acting_actor`, the trained actor unless a subclass keeps another (IQL's average of
     the actor's weights).
@@ -53,20 +55,30 @@ class OfflinePolicy(SACPolicy):
     :param action_chunk: actions per chunk (1: SAC's policy, one action a state).
     :param critic_layer_norm: LayerNorm after each hidden layer of the Q-networks.
     :param best_of_n: candidate actions ranked by the critics at each decision (1: the actor's own action).
+    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's (1: the actor's own
+        distribution).
     :param args: SAC's ``SACPolicy`` arguments (``observation_space``, ``action_space``, ``lr_schedule``, ...).
     :param kwargs: SAC's ``SACPolicy`` keywords (``net_arch``, ...).
     """
 
     def __init__(
-        self, *args: Any, action_chunk: int = 1, critic_layer_norm: bool = False, best_of_n: int = 1, **kwargs: Any
+        self,
+        *args: Any,
+        action_chunk: int = 1,
+        critic_layer_norm: bool = False,
+        best_of_n: int = 1,
+        best_of_n_scale: float = 1.0,
+        **kwargs: Any,
     ) -> None:
         if action_chunk < 1:
             raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
         if best_of_n < 1:
             raise ValueError(f"best_of_n must be >= 1, got {best_of_n}")
+        if not (best_of_n_scale > 0 and math.isfinite(best_of_n_scale)):
+            raise ValueError(f"best_of_n_scale must be a finite number > 0, got {best_of_n_scale}")
         # Both read by _build, which SACPolicy's __init__ calls.
         self.action_chunk, self.critic_layer_norm = action_chunk, critic_layer_norm
-        self.best_of_n = best_of_n
+        self.best_of_n, self.best_of_n_scale = best_of_n, best_of_n_scale
         super().__init__(*args, **kwargs)
 
     def make_critic(self, features_extractor: BaseFeaturesExtractor | None = None) -> ContinuousCritic:
@@ -100,6 +112,7 @@ class OfflinePolicy(SACPolicy):
             "action_chunk": self.action_chunk,
             "critic_layer_norm": self.critic_layer_norm,
             "best_of_n": self.best_of_n,
+            "best_of_n_scale": self.best_of_n_scale,
         }
 
     @property
@@ -115,7 +128,8 @@ class OfflinePolicy(SACPolicy):
 
     def best_of_n_actions(self, observation: th.Tensor | dict[str, th.Tensor], n: int, deterministic: bool) -> th.Tensor:
         """For each observation of the batch, the best of ``n`` :meth:`candidate_actions` by the critics' value (the
-        minimum of the twins): ``(batch, action_dim)`` in [-1, 1] (a whole chunk with action chunks).
+        minimum of the twins): ``(batch, action_dim)`` in [-1, 1] (a whole chunk with action chunks). The candidates'
+        standard deviation is the actor's times :attr:`best_of_n_scale`.
 
         :param observation: a batch of observations (tensors, as ``_predict`` receives them).
         :param n: candidates per observation.
@@ -123,6 +137,7 @@ class OfflinePolicy(SACPolicy):
             observation, the same action), else from torch's global generator.
         """
         mean_actions, log_std, _ = self.acting_actor.get_action_dist_params(observation)
+        log_std = log_std + math.log(self.best_of_n_scale)
         batch_size, action_dim = mean_actions.shape
         if deterministic:
             noise = th.stack([th.randn(n, action_dim, generator=_generator(seed)) for seed in _observation_seeds(observation)])

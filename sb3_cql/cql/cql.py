@@ -141,6 +141,8 @@ class CQL(OfflineSAC):
     :param best_of_n: act by ranking: draw ``best_of_n`` candidate actions (or chunks) from the actor at each decision
         and take the one the critics value most (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the
         model, changed by ``load(path, best_of_n=N)``. ``1`` (the default): the actor's own action.
+    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's (``1``, the default: the
+        actor's own distribution); saved with the model.
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's; by default SB3's choice,
         ``NStepReplayBuffer`` for ``n_steps`` > 1).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
@@ -208,6 +210,7 @@ class CQL(OfflineSAC):
         deterministic_rollouts: bool = False,
         action_chunk: int = 1,
         best_of_n: int = 1,
+        best_of_n_scale: float = 1.0,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
@@ -252,6 +255,7 @@ class CQL(OfflineSAC):
             deterministic_rollouts=deterministic_rollouts,
             action_chunk=action_chunk,
             best_of_n=best_of_n,
+            best_of_n_scale=best_of_n_scale,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,

@@ -133,6 +133,8 @@ class IQL(OfflineSAC):
         critic between one checkpoint and the next. ``None`` (the default, the references'): act with the actor.
     :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
         (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
+    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's (``1``, the default: the
+        actor's own distribution); saved with the model.
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
         ``False`` (the default, as the references) reads them raw; ``None`` z-scores them for an ``MlpPolicy`` on Box
         observations. On a sparse task of hand-made data, z-scored observations made the critics' advantages noisier
@@ -193,6 +195,7 @@ class IQL(OfflineSAC):
         target_floor: float | None = None,
         actor_average_tau: float | None = None,
         best_of_n: int = 1,
+        best_of_n_scale: float = 1.0,
         normalize_observations: bool | None = False,
         online_fraction: float | None = None,
         online_buffer_size: int = 1_000_000,
@@ -240,6 +243,7 @@ class IQL(OfflineSAC):
             deterministic_rollouts=deterministic_rollouts,
             action_chunk=action_chunk,
             best_of_n=best_of_n,
+            best_of_n_scale=best_of_n_scale,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
