@@ -250,28 +250,42 @@ class LinearCriticEnv(gym.Env):
         return self.observation_space.sample(), 0.0, False, True, {}
 
 
-@pytest.mark.parametrize("algorithm", [IQL, CQL])
-def test_best_of_n_acts_with_the_candidate_a_known_critic_values_most(algorithm):
-    """Critics that value an action by its first coordinate (Q = a_0, the second critic higher still): best-of-N
-    returns the sampled candidate of largest a_0, and more candidates find a larger one."""
-    env = LinearCriticEnv()
-    kwargs = {"cql_n_actions": 2} if algorithm is CQL else {}
-    model = algorithm("MlpPolicy", env, buffer_size=10, policy_kwargs={"net_arch": []}, best_of_n=16, seed=0, **kwargs)
+def known_critic_model(algorithm, **kwargs):
+    """A model of ``algorithm`` on :class:`LinearCriticEnv` whose critics value an action by its first coordinate
+    (Q = a_0, the second critic 1 higher)."""
+    extra = {"cql_n_actions": 2} if algorithm is CQL else {}
+    model = algorithm("MlpPolicy", LinearCriticEnv(), buffer_size=10, policy_kwargs={"net_arch": []}, seed=0,
+                      **extra, **kwargs)  # fmt: skip
     with th.no_grad():
         for offset, q_net in zip((0.0, 1.0), model.critic.q_networks, strict=True):
             linear = q_net[0]  # Linear(features + actions -> 1)
             linear.weight.zero_()
             linear.weight[0, 2] = 1.0  # the first action coordinate, after the 2 observation features
             linear.bias.fill_(offset)
-    policy = model.policy
-    observations = th.tensor([[0.1, -0.3], [0.5, 0.2]])
+    return model
+
+
+def chosen_and_best(policy, observations, n, scale=1.0, seed=1):
+    """Best-of-``n``'s action at ``observations`` (torch's generator seeded with ``seed``), and the candidate of
+    largest a_0 among the same draws, built by hand with the actor's spread times ``scale``."""
     mean_actions, log_std, _ = policy.actor.get_action_dist_params(observations)
-    th.manual_seed(1)
-    chosen = policy.best_of_n_actions(observations, 16, deterministic=False)
-    th.manual_seed(1)
-    noise = th.randn(2 * 16, 3)
-    candidates = policy.candidate_actions(mean_actions.repeat_interleave(16, 0), log_std.repeat_interleave(16, 0), noise)
-    best = candidates.reshape(2, 16, 3)[th.arange(2), candidates.reshape(2, 16, 3)[:, :, 0].argmax(dim=1)]
+    th.manual_seed(seed)
+    chosen = policy.best_of_n_actions(observations, n, deterministic=False)
+    th.manual_seed(seed)
+    noise = th.randn(len(observations) * n, mean_actions.shape[1])
+    spread = log_std.repeat_interleave(n, 0) + np.log(scale)
+    candidates = policy.candidate_actions(mean_actions.repeat_interleave(n, 0), spread, noise)
+    candidates = candidates.reshape(len(observations), n, -1)
+    return chosen, candidates[th.arange(len(observations)), candidates[:, :, 0].argmax(dim=1)]
+
+
+@pytest.mark.parametrize("algorithm", [IQL, CQL])
+def test_best_of_n_acts_with_the_candidate_a_known_critic_values_most(algorithm):
+    """Critics that value an action by its first coordinate (Q = a_0, the second critic higher still): best-of-N
+    returns the sampled candidate of largest a_0, and more candidates find a larger one."""
+    policy = known_critic_model(algorithm, best_of_n=16).policy
+    observations = th.tensor([[0.1, -0.3], [0.5, 0.2]])
+    chosen, best = chosen_and_best(policy, observations, 16)
     th.testing.assert_close(chosen, best)
     many = policy.best_of_n_actions(observations, 512, deterministic=True)
     assert (many[:, 0] >= chosen[:, 0]).all()
@@ -281,27 +295,14 @@ def test_best_of_n_acts_with_the_candidate_a_known_critic_values_most(algorithm)
 @pytest.mark.parametrize("algorithm", [IQL, CQL])
 def test_best_of_n_scale_draws_the_candidates_with_a_narrower_spread_around_the_actors_mean(algorithm):
     """With ``best_of_n_scale`` s the candidates are the actor's mean plus s times its spread: under the known critic
-    (Q = a_0) the chosen action is the argmax of those candidates, and a tiny scale returns the actor's own action."""
-    env = LinearCriticEnv()
-    kwargs = {"cql_n_actions": 2} if algorithm is CQL else {}
-    model = algorithm("MlpPolicy", env, buffer_size=10, policy_kwargs={"net_arch": []}, best_of_n=16,
-                      best_of_n_scale=0.25, seed=0, **kwargs)  # fmt: skip
-    with th.no_grad():
-        for q_net in model.critic.q_networks:
-            q_net[0].weight.zero_()
-            q_net[0].weight[0, 2] = 1.0
-    policy = model.policy
+    (Q = a_0) the chosen action is the argmax of those candidates, not of the actor's own, and a tiny scale returns
+    the actor's own action."""
+    policy = known_critic_model(algorithm, best_of_n=16, best_of_n_scale=0.25).policy
     observations = th.tensor([[0.1, -0.3], [0.5, 0.2]])
-    mean_actions, log_std, _ = policy.actor.get_action_dist_params(observations)
-    th.manual_seed(3)
-    chosen = policy.best_of_n_actions(observations, 16, deterministic=False)
-    th.manual_seed(3)
-    noise = th.randn(2 * 16, 3)
-    narrow = log_std.repeat_interleave(16, 0) + np.log(0.25)
-    candidates = policy.candidate_actions(mean_actions.repeat_interleave(16, 0), narrow, noise).reshape(2, 16, 3)
-    th.testing.assert_close(chosen, candidates[th.arange(2), candidates[:, :, 0].argmax(dim=1)])
-    wide = policy.candidate_actions(mean_actions.repeat_interleave(16, 0), log_std.repeat_interleave(16, 0), noise)
-    assert not th.allclose(chosen, wide.reshape(2, 16, 3)[th.arange(2), wide.reshape(2, 16, 3)[:, :, 0].argmax(dim=1)])
+    chosen, best = chosen_and_best(policy, observations, 16, scale=0.25, seed=3)
+    th.testing.assert_close(chosen, best)
+    _, best_of_the_actors_own = chosen_and_best(policy, observations, 16, scale=1.0, seed=3)
+    assert not th.allclose(chosen, best_of_the_actors_own)
     policy.best_of_n_scale = 1e-6
     own = policy.actor(observations, deterministic=True)
     th.testing.assert_close(policy.best_of_n_actions(observations, 16, deterministic=True), own, atol=1e-4, rtol=0)
