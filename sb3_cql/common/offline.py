@@ -397,18 +397,13 @@ class OfflineSAC(SAC):
         # A model saved with SAC's policy classes loads into ours (the same parameters).
         self.policy_class = self.policy_from_sac.get(self.policy_class, self.policy_class)  # type: ignore[arg-type]
         chunked, auto_entropy = getattr(self, "action_chunk", 1) > 1, self.target_entropy == "auto"
-        best_of_n = getattr(self, "best_of_n", 1)
-        if best_of_n > 1 or "best_of_n" in self.policy_kwargs:  # also a changed N given to load()
-            if not issubclass(self.policy_class, OfflinePolicy):
-                raise SettingError(f"best_of_n > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
-                                   f"got {self.policy_class.__name__}")  # fmt: skip
-            self.policy_kwargs["best_of_n"] = best_of_n
-        best_of_n_scale = getattr(self, "best_of_n_scale", 1.0)
-        if best_of_n_scale != 1.0 or "best_of_n_scale" in self.policy_kwargs:  # also a changed scale given to load()
-            if not issubclass(self.policy_class, OfflinePolicy):
-                raise SettingError(f"best_of_n_scale needs a policy of sb3_cql.common.policies (OfflinePolicy), "
-                                   f"got {self.policy_class.__name__}")  # fmt: skip
-            self.policy_kwargs["best_of_n_scale"] = best_of_n_scale
+        for name, default, setting in (("best_of_n", 1, "best_of_n > 1"), ("best_of_n_scale", 1.0, "best_of_n_scale != 1")):
+            value = getattr(self, name, default)
+            if value != default or name in self.policy_kwargs:  # also a changed value given to load()
+                if not issubclass(self.policy_class, OfflinePolicy):
+                    raise SettingError(f"{setting} needs a policy of sb3_cql.common.policies (OfflinePolicy), "
+                                       f"got {self.policy_class.__name__}")  # fmt: skip
+                self.policy_kwargs[name] = value
         if chunked:
             if not issubclass(self.policy_class, OfflinePolicy):
                 raise SettingError(f"action_chunk > 1 needs a policy of sb3_cql.common.policies (OfflinePolicy), "
