@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_cql import IQL, CalQL, CQL
+from sb3_cql import CQL, IQL, CalQL
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = np.load(ROOT / "tests" / "data" / "model_actions.npz")
