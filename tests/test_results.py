@@ -1,5 +1,6 @@
 """The models committed under results/models: each loads with its class and acts in the task it was trained on, and
-it is the model at the end of the training its record describes; every study folder says how it was made."""
+it is the model at the end of the training its record describes (the protocol's fine-tuning stage's in results/, a
+study's in research/studies/, read as data); the fine-tuning stage's folder says how it was made."""
 
 import json
 import re
@@ -13,7 +14,9 @@ import yaml
 import envs  # noqa: F401  (registers the tasks)
 from sb3_cql import CQL, IQL
 
-RESULTS = Path(__file__).resolve().parents[1] / "results"
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "results"
+STUDIES_DIR = ROOT / "research" / "studies"
 FINETUNED = sorted((RESULTS / "models").glob("finetune-*.zip"))
 OFFLINE_YAW = sorted((RESULTS / "models").glob("offline-yaw-*.zip"))
 MAX_BYTES = 24 * 1024 * 1024  # what the repository holds of models at most
@@ -28,12 +31,12 @@ def test_the_committed_models_fit_in_the_repository():
 def record_of(path: Path) -> tuple[str, dict]:
     """The task and record of a committed model: ``finetune-<task>-seed<N>.zip`` is the protocol's fine-tuning stage
     (its record in ``results/finetune-<task>/records``), ``finetune-chunked-<task>-seed<N>.zip`` a chunked zoo
-    fine-tuning (its record in ``results/finetune-chunked/runs/seed<N>``)."""
+    fine-tuning (its record in ``research/studies/finetune-chunked/runs/seed<N>``)."""
     name, seed = path.stem.rsplit("-", 1)
     task = name.removeprefix("finetune-")
     if task.startswith("chunked-"):
         task = task.removeprefix("chunked-")
-        return task, json.loads((RESULTS / "finetune-chunked" / "runs" / seed / "record.json").read_text())
+        return task, json.loads((STUDIES_DIR / "finetune-chunked" / "runs" / seed / "record.json").read_text())
     return task, json.loads(
         (RESULTS / f"finetune-{task}" / "records" / "train" / f"cql-finetune-{task}-{seed}.json").read_text()
     )
@@ -54,9 +57,9 @@ def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
     env.close()
 
 
-#: The row of ``results/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is, its class, and
-#: the zoo configuration in ``hyperparams/`` that trains it.
-OFFLINE_ROWS = {"iql": ("iql-yaw-ddpgawr4-40k-mfa", IQL, "iql_yaw_long.yml")}
+#: The row of ``research/studies/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is, its
+#: class, and the zoo configuration in ``hyperparams/`` that trains it.
+OFFLINE_ROWS = {"iql": ("iql-yaw-ddpgawr4-40k-mfa", IQL, "iql_yaw.yml")}
 #: Keys of a zoo configuration that are not the algorithm's attributes of the same name.
 ZOO_ONLY_KEYS = {
     "policy",
@@ -77,9 +80,9 @@ def test_a_committed_offline_model_loads_with_its_class_and_acts_in_its_task(pat
     1) in the delta actions it was trained in."""
     task, algo, seed = re.fullmatch(r"offline-yaw-(.+)-([a-z]+)-seed(\d+)", path.stem).groups()
     row, algorithm, config_file = OFFLINE_ROWS[algo]
-    record = json.loads((RESULTS / "offline-yaw" / f"{row}-seed{seed}.json").read_text())
+    record = json.loads((STUDIES_DIR / "offline-yaw" / f"{row}-seed{seed}.json").read_text())
     assert record["algo"] == algo and all(len(record["tasks"][name]["episodes"]) == 100 for name in record["tasks"])
-    config = yaml.safe_load((RESULTS.parent / "hyperparams" / config_file).read_text())[task]
+    config = yaml.safe_load((ROOT / "hyperparams" / config_file).read_text())[task]
     model = algorithm.load(path)
     assert model.num_timesteps == config["n_timesteps"] and model.best_of_n == 1
     for key in config.keys() - ZOO_ONLY_KEYS:
@@ -94,13 +97,18 @@ def test_a_committed_offline_model_loads_with_its_class_and_acts_in_its_task(pat
     env.close()
 
 
-#: The protocol's own folders at the top of results/; every other folder is a study.
+#: The protocol's own folders at the top of results/: every other folder there is the protocol's fine-tuning stage (the
+#: studies are in research/studies/, their README check in research/tests/).
 PROTOCOL_FOLDERS = {"figures", "records", "runs", "models"}
-STUDIES = sorted(path for path in RESULTS.iterdir() if path.is_dir() and path.name not in PROTOCOL_FOLDERS)
+FINETUNE_STAGES = sorted(path for path in RESULTS.iterdir() if path.is_dir() and path.name not in PROTOCOL_FOLDERS)
 
 
-@pytest.mark.parametrize("study", STUDIES, ids=lambda path: path.name)
-def test_every_study_folder_names_its_command_and_date(study):
-    readme = (study / "README.md").read_text()
-    assert "python -m " in readme and re.search(r"\b2026-\d\d-\d\d\b", readme)
-    assert f"]({study.name}/README.md)" in (RESULTS / "README.md").read_text()  # listed in the results folder's index
+def test_results_holds_the_protocol_and_its_fine_tuning_stage_only():
+    assert [path.name for path in FINETUNE_STAGES] == ["finetune-PandaForce-v0"]
+
+
+@pytest.mark.parametrize("folder", FINETUNE_STAGES, ids=lambda path: path.name)
+def test_the_fine_tuning_stage_names_its_command_and_date(folder):
+    readme = (folder / "README.md").read_text()
+    assert "python -m sb3_cql.protocol " in readme and re.search(r"\b2026-\d\d-\d\d\b", readme)
+    assert f"]({folder.name}/README.md)" in (RESULTS / "README.md").read_text()  # listed in the results folder's index

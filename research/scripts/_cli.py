@@ -1,6 +1,6 @@
 """What the experiment scripts' command lines share: argument types, and the CQL model started from a BC clone.
 
-The scripts import it as ``_cli`` (``python experiments/<name>.py`` puts this folder first on ``sys.path``).
+The scripts import it as ``_cli`` (``python research/scripts/<name>.py`` puts this folder first on ``sys.path``).
 """
 
 from __future__ import annotations

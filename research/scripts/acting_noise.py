@@ -1,7 +1,7 @@
 """How a SAC-style actor's exploration (a sample of its distribution, or its deterministic action plus noise) changes
 its success on a task, and where the sampled actions leave the deterministic ones.
 
-Usage: python experiments/acting_noise.py MODEL.zip [--algo cql] [--env PandaForce-v0] [--seeds 60000-60019]
+Usage: python research/scripts/acting_noise.py MODEL.zip [--algo cql] [--env PandaForce-v0] [--seeds 60000-60019]
            [--modes mean sample normal:0.1 ou:0.1 pink:0.1 held:0.1] [--open-loop] [--threads N]
 
 Each mode plays the episodes reset with ``--seeds`` (one episode per seed: the same episodes for every mode) in the
@@ -197,7 +197,9 @@ def _fmt(values: np.ndarray) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/acting_noise.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python research/scripts/acting_noise.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("model", help="a saved SAC-style model (cql, sac, bc)")
     parser.add_argument("--algo", default="cql", help="RL-Zoo3 name of its algorithm (default cql)")

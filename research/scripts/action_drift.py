@@ -1,6 +1,6 @@
 """Which action dimensions move when CQL's actor turns from imitating a clone to following Q, and the critic's dQ/da.
 
-Usage: python experiments/action_drift.py BC_MODEL.zip
+Usage: python research/scripts/action_drift.py BC_MODEL.zip
            [--dataset-id ID] [--kwargs JSON] [--every N] [--probes N] [--probe-states N] [--log-dir DIR] [--threads N]
 
 A :class:`sb3_cql.CQL` model on Panda-v0 in delta action mode (seed 1, the clone's network architecture) takes the
@@ -45,7 +45,9 @@ DEFAULT_KWARGS = {"batch_size": 128, "bc_steps": 3000, "reward_scale": 4.0, "rew
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python experiments/action_drift.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python research/scripts/action_drift.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("bc_model", metavar="BC_MODEL.zip", help="a saved sb3_cql.BC model (delta action mode)")
     parser.add_argument(

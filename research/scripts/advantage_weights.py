@@ -1,6 +1,6 @@
 """How an IQL model's advantage weights spread over a dataset's own transitions: how many samples the actor learns from.
 
-Usage: python experiments/advantage_weights.py MODEL.zip [--dataset ID] [--episodes N] [--weights T:M ...]
+Usage: python research/scripts/advantage_weights.py MODEL.zip [--dataset ID] [--episodes N] [--weights T:M ...]
 [--threads N]
 
 At every step of the dataset's first ``--episodes`` episodes, the advantage IQL's actor is weighted by,
@@ -78,7 +78,7 @@ def weights_line(advantage: np.ndarray, temperature: float, max_weight: float, o
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/advantage_weights.py", description=__doc__,
+        prog="python research/scripts/advantage_weights.py", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     parser.add_argument("model", help="a saved IQL model (.zip)")

@@ -1,6 +1,6 @@
 """The alignment histograms of a set of evaluations, from the files of ``python -m sb3_cql.evaluate ... --output``.
 
-Usage: python experiments/alignment_figure.py RECORD.json [RECORD.json ...] --output FIGURE.png [--task TASK]
+Usage: python research/scripts/alignment_figure.py RECORD.json [RECORD.json ...] --output FIGURE.png [--task TASK]
 
 One panel a row: the share of the row's closings on a lying cylinder in each 10-degree bin of the angle between the
 fingers' closing direction and the cylinder's axis (90: across it), on ``--task`` (PandaForce-v0), with the row's
@@ -41,7 +41,7 @@ def read_rows(paths: list[Path], task: str) -> dict[str, list[dict[str, Any]]]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/alignment_figure.py", description=__doc__,
+        prog="python research/scripts/alignment_figure.py", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     parser.add_argument("records", nargs="+", type=Path, help="sb3_cql.evaluate --output files")

@@ -1,6 +1,6 @@
 """A trained BC actor trained on with BC at a constant learning rate, its success rate measured every K steps.
 
-Usage: python experiments/bc_continued.py BC_MODEL.zip STEPS K LR BATCH DATASET_ID
+Usage: python research/scripts/bc_continued.py BC_MODEL.zip STEPS K LR BATCH DATASET_ID
            [--eval-episodes N] [--eval-seed SEED] [--log-dir DIR] [--threads N]
 
 A new :class:`sb3_cql.BC` model on Panda-v0 in delta action mode (seed 1, the clone's network architecture) starts
@@ -13,7 +13,7 @@ default, the env reset with ``--eval-seed``, 1000 by default)::
     step 1000: success rate 0.900
 
 It shows whether a clone stays a working policy under further imitation at a rate that does not decay, the
-comparison for CQL started from the same clone (``experiments/cql_from_clone.py``).
+comparison for CQL started from the same clone (``research/scripts/cql_from_clone.py``).
 
 The training log (``progress.csv``, one row every K steps) goes to ``--log-dir``, by default a new folder in the
 system's temporary directory (SB3's default: ``$SB3_LOGDIR`` or ``/tmp/SB3-DATE``); the line ``Logging to DIR`` names
@@ -41,7 +41,9 @@ ENV_KWARGS = {"action_mode": "delta"}
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python experiments/bc_continued.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python research/scripts/bc_continued.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("bc_model", metavar="BC_MODEL.zip", help="a saved sb3_cql.BC model (delta action mode)")
     parser.add_argument("steps", metavar="STEPS", type=int, help="gradient steps in all")

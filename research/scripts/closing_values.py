@@ -1,6 +1,6 @@
 """What a trained critic makes of the hand's yaw on a knocked-out cylinder, read off a dataset's own episodes.
 
-Usage: python experiments/closing_values.py MODEL.zip [--algo cql] [--dataset ID] [--episodes N] [--segment N]
+Usage: python research/scripts/closing_values.py MODEL.zip [--algo cql] [--dataset ID] [--episodes N] [--segment N]
 [--threads N]
 
 Two readings, both at states of the dataset's episodes (its first ``--episodes``) where the cylinder lies on its side:
@@ -125,7 +125,7 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/closing_values.py", description=__doc__,
+        prog="python research/scripts/closing_values.py", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     parser.add_argument("model", help="a saved model with critics, trained in delta actions (.zip)")

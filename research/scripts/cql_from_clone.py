@@ -1,6 +1,6 @@
 """CQL with its actor started from a trained BC model, its success rate measured every K gradient steps.
 
-Usage: python experiments/cql_from_clone.py BC_MODEL.zip STEPS K KWARGS_JSON [DATASET_ID]
+Usage: python research/scripts/cql_from_clone.py BC_MODEL.zip STEPS K KWARGS_JSON [DATASET_ID]
            [--eval-episodes N] [--eval-seed SEED] [--log-dir DIR] [--threads N]
 
 A :class:`sb3_cql.CQL` model on Panda-v0 in delta action mode (seed 1) takes the actor of ``BC_MODEL.zip`` (weights
@@ -93,7 +93,9 @@ def cql_keywords(text: str) -> dict[str, Any]:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python experiments/cql_from_clone.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python research/scripts/cql_from_clone.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("bc_model", metavar="BC_MODEL.zip", help="a saved sb3_cql.BC model (delta action mode)")
     parser.add_argument("steps", metavar="STEPS", type=int, help="gradient steps in all")

@@ -1,7 +1,7 @@
 """What fine-tuning runs did, from their zoo folders: evaluations against env steps (a figure, mean and 95% CI over the
 runs), and per block of env steps the online episodes' successes and how their fingers closed on a fallen cylinder.
 
-Usage: python experiments/finetune_record.py RUN [RUN ...] --output FIGURE.png [--block 20000] [--labels NAME ...]
+Usage: python research/scripts/finetune_record.py RUN [RUN ...] --output FIGURE.png [--block 20000] [--labels NAME ...]
 
 Each RUN is a zoo run folder of a fine-tuning (``logs/cql/PandaForce-v0_1``): its ``evaluations.npz`` (the zoo's
 evaluations during training), ``0.monitor.csv`` (each online episode's length and success) and the checkpoint's
@@ -123,7 +123,7 @@ def figure(records: dict[str, dict[str, Any]], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/finetune_record.py", description=__doc__,
+        prog="python research/scripts/finetune_record.py", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     parser.add_argument("runs", nargs="+", type=Path, help="zoo run folders of fine-tunings")

@@ -1,6 +1,6 @@
 """Where a policy whose episodes fail without ever closing the hand stops, and what the data and its critics say there.
 
-Usage: python experiments/grasp_stalls.py MODEL.zip [--algo iql] [--env Panda-v0] [--seeds 60000-60049]
+Usage: python research/scripts/grasp_stalls.py MODEL.zip [--algo iql] [--env Panda-v0] [--seeds 60000-60049]
 [--dataset ID] [--episodes N] [--threads N]
 
 Two readings:
@@ -141,7 +141,7 @@ def stalls_line(stalls: list[tuple[float, float, float | None]]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/grasp_stalls.py", description=__doc__,
+        prog="python research/scripts/grasp_stalls.py", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     parser.add_argument("model", help="a saved model trained in delta actions (.zip)")

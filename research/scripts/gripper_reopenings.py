@@ -1,6 +1,6 @@
 """Count the episodes of a delta-action dataset whose gripper command opens again after it has closed.
 
-Usage: python experiments/gripper_reopenings.py DATASET_ID
+Usage: python research/scripts/gripper_reopenings.py DATASET_ID
 
 In delta mode the PD controllers command the gripper +1 (open) or -1 (close), the last action dimension. An episode
 reopens when a +1 follows its first -1: the regrasping controllers (``pid-regrasp``, ``noisy-regrasp``) reopen to
@@ -45,7 +45,7 @@ def count(dataset) -> tuple[int, int, int, int]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/gripper_reopenings.py",
+        prog="python research/scripts/gripper_reopenings.py",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -1,6 +1,6 @@
 """Train CQL briefly, then compare its Q-values at the data's actions, at perturbed data actions and at the policy's.
 
-Usage: python experiments/q_probe.py STEPS KWARGS_JSON
+Usage: python research/scripts/q_probe.py STEPS KWARGS_JSON
            [--dataset-id ID] [--probe-states N] [--log-dir DIR] [--threads N]
 
 A :class:`sb3_cql.CQL` model on Panda-v0 in delta action mode (seed 1, 3 x 256 networks unless ``policy_kwargs``
@@ -48,7 +48,7 @@ ARM_NOISE = 0.05
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python experiments/q_probe.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python research/scripts/q_probe.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("steps", metavar="STEPS", type=int, help="gradient steps")
     parser.add_argument("kwargs", metavar="KWARGS_JSON", type=cql_keywords, help="JSON object of CQL keywords")

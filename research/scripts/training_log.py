@@ -1,6 +1,6 @@
 """What a training printed, at chosen steps: how its losses and values moved, from the tables SB3 writes to stdout.
 
-Usage: python experiments/training_log.py LOG [LOG ...] [--keys KEY ...] [--every STEPS]
+Usage: python research/scripts/training_log.py LOG [LOG ...] [--keys KEY ...] [--every STEPS]
 
 ``LOG`` is a training's saved stdout (``python -m rl_zoo3.train ... > runs/ROW-sS.train.log``, any algorithm at
 ``verbose`` 1), whose tables SB3's ``HumanOutputFormat`` prints at each dump of the logs (every 1,000 gradient steps
@@ -71,7 +71,9 @@ def at_steps(tables: list[dict[str, str]], every: int) -> list[tuple[int, dict[s
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/training_log.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python research/scripts/training_log.py",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="a training's saved stdout")
     parser.add_argument("--keys", nargs="+", default=list(DEFAULT_KEYS), help="SB3's names of the logged numbers")

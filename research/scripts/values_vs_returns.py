@@ -1,7 +1,7 @@
 """A fine-tuned CQL model's values against the returns its data actually earned: online and offline states, of
 successful and failed episodes.
 
-Usage: python experiments/values_vs_returns.py MODEL.zip BUFFER.pkl [--offline-states N] [--seed S] [--threads N]
+Usage: python research/scripts/values_vs_returns.py MODEL.zip BUFFER.pkl [--offline-states N] [--seed S] [--threads N]
 
 ``MODEL.zip`` is a :class:`sb3_cql.CQL` model fine-tuned online (one action a state, or in action chunks: then
 ``a`` is the stored chunk from each state) and ``BUFFER.pkl`` the online transitions saved with
@@ -26,7 +26,7 @@ says whether the critic ranks states as their outcomes do; ``Q(s,a)<RTG-100`` is
 than 100 below their return-to-go. The last line splits the successful online episodes' states by how many steps
 before the episode's end (the lift) they lie: with the discount, a success several hundred steps ahead is worth
 little more than the floor. A failed episode reopens the gripper when its gripper command (the last action
-dimension) opens again after it has first closed (``experiments/gripper_reopenings.py``), each held for 20 steps or
+dimension) opens again after it has first closed (``research/scripts/gripper_reopenings.py``), each held for 20 steps or
 more (shorter runs of one sign are the exploration noise's flips). Nothing is written; torch runs ``--threads``
 threads (1 by default).
 """
@@ -140,7 +140,7 @@ def before_success(model: CQL, buffer: ReturnToGoReplayBuffer, episodes: list[np
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python experiments/values_vs_returns.py", description=__doc__,
+        prog="python research/scripts/values_vs_returns.py", description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     parser.add_argument("model", help="a CQL model fine-tuned online (.zip)")

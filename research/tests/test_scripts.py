@@ -1,5 +1,6 @@
-"""The experiment scripts in experiments/: each run end to end as a subprocess on a tiny dataset and clone, their
-command lines, and the backup variants of cql_from_clone.py.
+"""The research scripts in research/scripts/: each run end to end as a subprocess on a tiny dataset and clone, their
+command lines, and the backup variants of cql_from_clone.py. Not part of the default suite:
+``python -m pytest -n 0 research/tests``.
 
 The seven script runs start together, once per module (each is mostly start-up time), and the tests check their
 results.
@@ -27,7 +28,8 @@ import envs
 from sb3_cql import BC, CQL, IQL
 from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPTS_DIR = ROOT / "research" / "scripts"
 SCRIPTS = ("acting_noise", "action_drift", "advantage_weights", "bc_continued", "closing_values", "cql_from_clone",
            "grasp_stalls", "gripper_reopenings", "q_probe", "values_vs_returns")  # fmt: skip
 FINETUNED_STEPS = 700  # one Panda-v0 episode, cut by the time limit unless it succeeds
@@ -42,11 +44,11 @@ FLOATS = rf"\[{FLOAT}(?:, {FLOAT}){{{ACTION_DIM - 1}}}\]"  # one value per actio
 
 
 def load_script(name: str):
-    """The script ``experiments/<name>.py`` as a module (its ``main`` is not run), importing ``_cli`` from its folder
-    as the script run by path does."""
-    if str(ROOT / "experiments") not in sys.path:
-        sys.path.insert(0, str(ROOT / "experiments"))
-    spec = importlib.util.spec_from_file_location(f"experiments_{name}", ROOT / "experiments" / f"{name}.py")
+    """The script ``research/scripts/<name>.py`` as a module (its ``main`` is not run), importing ``_cli`` from its
+    folder as the script run by path does."""
+    if str(SCRIPTS_DIR) not in sys.path:
+        sys.path.insert(0, str(SCRIPTS_DIR))
+    spec = importlib.util.spec_from_file_location(f"research_scripts_{name}", SCRIPTS_DIR / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -59,7 +61,7 @@ def inputs(tmp_path_factory):
     model fine-tuned online for one episode, ``finetuned.zip`` with its online transitions ``finetuned_buffer.pkl``;
     and 2 PandaForce-v0 episodes of the noisy regrasping controller with random yaws, with a chunked CQL model trained
     a few steps on them, ``chunked.zip``, and an IQL model, ``iql.zip``."""
-    root = tmp_path_factory.mktemp("experiments")
+    root = tmp_path_factory.mktemp("research")
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MINARI_DATASETS_PATH", str(root / "datasets"))
         spec = CollectionSpec(policy="noisy-regrasp", n_episodes=2, env_kwargs={"action_mode": "delta"})
@@ -117,7 +119,7 @@ def runs(inputs) -> dict[str, subprocess.CompletedProcess]:
     started = {}
     for name, args in commands(inputs).items():
         with open(outputs[name][0], "w") as stdout, open(outputs[name][1], "w") as stderr:
-            command = [sys.executable, f"experiments/{name}.py", *args]
+            command = [sys.executable, f"research/scripts/{name}.py", *args]
             started[name] = subprocess.Popen(command, cwd=ROOT, env=env, stdout=stdout, stderr=stderr)
     results = {}
     for name, process in started.items():
@@ -500,7 +502,7 @@ def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(["--help"])
     assert exit_.value.code == 0
-    assert capsys.readouterr().out.startswith(f"usage: python experiments/{name}.py")
+    assert capsys.readouterr().out.startswith(f"usage: python research/scripts/{name}.py")
 
 
 @pytest.mark.parametrize(
@@ -530,7 +532,7 @@ def test_a_bad_argument_is_a_usage_error(name, args, message, capsys):
         load_script(name).main(args)
     assert exit_.value.code == 2
     usage, error = capsys.readouterr().err.strip().rsplit("\n", 1)
-    assert usage.startswith(f"usage: python experiments/{name}.py") and message in error
+    assert usage.startswith(f"usage: python research/scripts/{name}.py") and message in error
 
 
 def test_reopening_is_an_open_command_after_the_first_close():
