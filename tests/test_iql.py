@@ -13,16 +13,16 @@ from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_cql import BC, CQL, IQL
 from sb3_cql.common import SettingError, TrainingDivergedError, returns_to_go
-from sb3_cql.iql import expectile_bce_loss, expectile_loss
+from sb3_cql.iql import expectile_loss
 from sb3_cql.iql.policies import LOG_STD_MAX, LOG_STD_MIN, IQLActor
 
 TINY = {"net_arch": [16]}
 
 
-def pendulum_iql(**kwargs) -> IQL:
+def pendulum_iql(algorithm: type[IQL] = IQL, **kwargs) -> IQL:
     env = gym.make("Pendulum-v1")
     settings = {"batch_size": 16, "seed": 0, "policy_kwargs": TINY, **kwargs}
-    return IQL("MlpPolicy", env, dataset=random_rollouts(gym.make("Pendulum-v1"), 300), **settings)
+    return algorithm("MlpPolicy", env, dataset=random_rollouts(gym.make("Pendulum-v1"), 300), **settings)
 
 
 def one_recorded_update(model: IQL, batch_size: int):
@@ -43,121 +43,81 @@ def test_the_expectile_loss_weights_each_side_of_zero_by_hand():
     assert expectile_loss(differences, 0.5).item() == pytest.approx(0.5 * np.mean(differences.numpy() ** 2))
 
 
-@pytest.mark.parametrize("n_steps", [1, 3])
-def test_one_update_is_the_papers_losses_computed_by_hand(n_steps):
-    """Value by expectile regression on the target critics, advantage weights from the updated value, critics by TD to
-    V(s') with the samples' n-step discounts at gamma 0.999 and shaped rewards: each logged loss equals the same
-    computation by hand on the batch the step drew, with the networks as they were."""
+@pytest.mark.parametrize(("n_steps", "q_agg"), [(1, "min"), (3, "min"), (3, "mean")])
+def test_one_update_is_the_papers_losses_computed_by_hand(n_steps, q_agg):
+    """Value by expectile regression on the target critics (their minimum, or with q_agg="mean" their mean), the
+    actor by regression weighted by the advantages under the updated value, critics by TD to V(s') with the samples'
+    n-step discounts at gamma 0.999 and shaped rewards: each logged loss equals the same computation by hand on the
+    batch the step drew, with the networks as they were."""
     model = pendulum_iql(gamma=0.999, expectile=0.8, temperature=2.0, max_weight=5.0, n_steps=n_steps,
-                         reward_scale=2.0, reward_bias=-1.0)  # fmt: skip
+                         reward_scale=2.0, reward_bias=-1.0, q_agg=q_agg)  # fmt: skip
     before, batch, logged = one_recorded_update(model, 16)
 
     obs, actions = batch.observations, batch.actions
     with th.no_grad():
-        q_data = th.min(*before.critic_target(obs, actions))
+        twins = before.critic_target(obs, actions)
+        q_data = th.min(*twins) if q_agg == "min" else (twins[0] + twins[1]) / 2
         u = q_data - before.value_net(obs)
         value_loss = (th.where(u < 0, 0.2, 0.8) * u**2).mean()
         weights = th.exp(2.0 * (q_data - model.value_net(obs))).clamp(max=5.0)  # the value after its step
+        actor_loss = -(weights.squeeze(1) * before.actor.log_prob_of(obs, actions)).mean()
         discounts = batch.discounts if n_steps > 1 else 0.999
         steps = (1 - batch.discounts) / (1 - 0.999) if n_steps > 1 else 1.0
         target = 2.0 * batch.rewards - 1.0 * steps + (1 - batch.dones) * discounts * model.value_net(batch.next_observations)
         critic_loss = sum(((q - target) ** 2).mean() for q in before.critic(obs, actions))
     if n_steps > 1:
         assert (batch.discounts < 0.999).any()  # some samples summed several steps
+    assert not th.allclose(q_data, th.min(*twins) if q_agg == "mean" else (twins[0] + twins[1]) / 2)
+    assert logged["train/iql_q_data"] == pytest.approx(q_data.mean().item(), rel=1e-5)
     assert logged["train/value_loss"] == pytest.approx(value_loss.item(), rel=1e-5)
     assert logged["train/iql_weight"] == pytest.approx(weights.mean().item(), rel=1e-5)
+    assert logged["train/actor_loss"] == pytest.approx(actor_loss.item(), rel=1e-5)
     assert logged["train/critic_loss"] == pytest.approx(critic_loss.item(), rel=1e-5)
 
 
-def test_the_success_scale_expectile_loss_weights_the_cross_entropy_by_hand():
-    logits = th.tensor([[0.0], [2.0], [-1.0]])
-    targets = th.tensor([[0.9], [0.5], [0.0]])
-    p = 1 / (1 + np.exp(-logits.numpy()[:, 0]))
-    t = targets.numpy()[:, 0]
-    bce = -(t * np.log(p) + (1 - t) * np.log(1 - p))
-    weights = np.where(t < p, 0.3, 0.7)  # target below the value: 1 - expectile
-    assert expectile_bce_loss(logits, targets, 0.7).item() == pytest.approx(np.mean(weights * bce), rel=1e-6)
-    # at 0.5 its minimum over a constant logit is the targets' mean (SARSA's value), found by gradient descent
-    logit = th.zeros(1, requires_grad=True)
-    optimizer = th.optim.SGD([logit], lr=5.0)
-    for _ in range(300):
-        optimizer.zero_grad()
-        expectile_bce_loss(logit.expand(3, 1), targets, 0.5).backward()
-        optimizer.step()
-    assert th.sigmoid(logit).item() == pytest.approx(targets.mean().item(), abs=1e-4)
+class RecordingIQL(IQL):
+    """IQL that records the hooks its update calls, in order, and halves the critics' loss."""
+
+    def _setup_model(self):
+        self.calls = []
+        super()._setup_model()
+
+    def value_loss(self, replay_data, q_data):
+        self.calls.append("value_loss")
+        return super().value_loss(replay_data, q_data)
+
+    def actor_loss(self, replay_data, weights, logs):
+        self.calls.append("actor_loss")
+        return super().actor_loss(replay_data, weights, logs)
+
+    def compute_target(self, replay_data, discounts):
+        self.calls.append("compute_target")
+        return super().compute_target(replay_data, discounts)
+
+    def critic_loss(self, replay_data, target_q_values):
+        self.calls.append("critic_loss")
+        return 0.5 * super().critic_loss(replay_data, target_q_values)
 
 
-def sparse_success_buffer(episodes: int = 10, length: int = 40) -> tuple[gym.Env, ReplayBuffer]:
-    """A one-dimensional task whose every other episode ends in a success (reward 1, terminated); the others are cut
-    by the time limit."""
-    env = spaces_env(spaces.Box(-1.0, 1.0, (1,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32))
-    buffer = ReplayBuffer(episodes * length, env.observation_space, env.action_space)
-    rng = np.random.default_rng(0)
-    for episode in range(episodes):
-        for step in range(length):
-            done = step == length - 1
-            reward = 1.0 if done and episode % 2 == 0 else 0.0
-            buffer.add(np.array([step / length]), np.array([(step + 1) / length]), rng.uniform(-1, 1, 1),
-                       np.array([reward]), np.array([done]), [{"TimeLimit.truncated": done and reward == 0}])  # fmt: skip
-    return env, buffer
+def test_the_update_calls_one_hook_a_loss_in_the_papers_order_and_a_subclass_changes_one():
+    """Each gradient step: the value's loss, the actor's, the critics' target and the critics' loss, each a method a
+    subclass overrides; halving the critics' loss halves what the step logs and trains on, the value's step unchanged."""
+    model = pendulum_iql(RecordingIQL)
+    _, _, logged = one_recorded_update(model, 16)
+    _, _, plain_logged = one_recorded_update(pendulum_iql(), 16)  # the same seed, batch and networks
+    assert model.calls == ["value_loss", "actor_loss", "compute_target", "critic_loss"]
+    assert logged["train/critic_loss"] == pytest.approx(0.5 * plain_logged["train/critic_loss"], rel=1e-5)
+    assert logged["train/value_loss"] == pytest.approx(plain_logged["train/value_loss"], rel=1e-6)
+    model.train(gradient_steps=2, batch_size=16)
+    assert model.calls[4:] == model.calls[:4] * 2
 
 
-@pytest.mark.parametrize("n_steps", [1, 5])
-def test_one_update_on_the_success_scale_is_the_cross_entropies_computed_by_hand(n_steps):
-    """value_loss_type="bce" with q_agg="mean": the value's weighted cross-entropy against the mean of the target
-    twins' sigmoids, the advantage weights from sigmoids, the critics' cross-entropies against r + (1 - d) *
-    discount * sigmoid(V(s')), each equal to the same computation by hand on the batch the step drew."""
-    env, buffer = sparse_success_buffer()
-    model = IQL("MlpPolicy", env, dataset=buffer, gamma=0.999, expectile=0.7, temperature=2.0, n_steps=n_steps,
-                value_loss_type="bce", q_agg="mean", batch_size=32, policy_kwargs=TINY, seed=0)  # fmt: skip
-    before, batch, logged = one_recorded_update(model, 32)
-
-    def bce(logit: th.Tensor, target: th.Tensor) -> th.Tensor:
-        p = th.sigmoid(logit)
-        return -(target * th.log(p) + (1 - target) * th.log(1 - p))
-
-    obs, actions = batch.observations, batch.actions
-    with th.no_grad():
-        q_data = sum(th.sigmoid(q) for q in before.critic_target(obs, actions)) / 2
-        v_logit = before.value_net(obs)
-        value_loss = (th.where(q_data < th.sigmoid(v_logit), 0.3, 0.7) * bce(v_logit, q_data)).mean()
-        advantage = q_data - th.sigmoid(model.value_net(obs))
-        discounts = batch.discounts if n_steps > 1 else 0.999
-        target = batch.rewards + (1 - batch.dones) * discounts * th.sigmoid(model.value_net(batch.next_observations))
-        critic_loss = sum(bce(q, target).mean() for q in before.critic(obs, actions))
-    assert ((target >= 0) & (target <= 1)).all() and (batch.rewards > 0).any()
-    assert logged["train/value_loss"] == pytest.approx(value_loss.item(), rel=1e-5)
-    assert logged["train/iql_advantage"] == pytest.approx(advantage.mean().item(), rel=1e-4, abs=1e-7)
-    assert logged["train/critic_loss"] == pytest.approx(critic_loss.item(), rel=1e-5)
-    assert 0 < logged["train/iql_q_data"] < 1 and 0 < logged["train/iql_value"] < 1
-
-
-def test_values_on_the_success_scale_stay_between_a_failure_and_a_success(tmp_path):
-    """Trained long enough to move, the success-scale value of every state is in (0, 1), and the states closer to the
-    success are worth more."""
-    env, buffer = sparse_success_buffer()
-    model = IQL("MlpPolicy", env, dataset=buffer, gamma=0.999, expectile=0.5, n_steps=10, value_loss_type="bce",
-                batch_size=64, policy_kwargs={"net_arch": [32, 32]}, seed=0)  # fmt: skip
-    model.learn(1500)
-    observations = th.linspace(0, 1, 41).reshape(-1, 1)
-    with th.no_grad():
-        values = model.as_values(model.value_net(observations)).flatten()
-    assert ((values > 0) & (values < 1)).all()
-    assert values[-5:].mean() > values[:5].mean()
-    model.save(tmp_path / "bce.zip")
-    loaded = IQL.load(tmp_path / "bce.zip")
-    assert (loaded.value_loss_type, loaded.q_agg) == ("bce", "min")
-    with th.no_grad():
-        th.testing.assert_close(loaded.as_values(loaded.value_net(observations)).flatten(), values)
-
-
-@pytest.mark.parametrize("actor_loss_type", ["ddpg_bc", "ddpg_awr"])
-def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_data_by_hand(tmp_path, actor_loss_type):
-    """With actor_loss_type="ddpg_bc" the logged actor loss is -mean(Q)/mean|Q| at the actor's deterministic action
-    (Q the twins' minimum, before the critics' step) plus actor_bc_weight times the squared error to the data's
-    actions plus the spread's negative log-likelihood around the detached mean; "ddpg_awr" weights each sample's
-    squared error by its advantage weight over the batch's mean weight. The setting is saved with the model."""
-    model = pendulum_iql(actor_loss_type=actor_loss_type, actor_bc_weight=2.0, temperature=0.5, max_weight=3.0)
+def test_the_ddpg_awr_actor_follows_the_critics_normalised_value_anchored_by_advantage_weights_by_hand(tmp_path):
+    """With actor_loss_type="ddpg_awr" the logged actor loss is -mean(Q)/mean|Q| at the actor's deterministic action
+    (Q the twins' minimum, before the critics' step) plus actor_bc_weight times the squared errors to the data's
+    actions, each weighted by its advantage weight over the batch's mean weight, plus the spread's negative
+    log-likelihood around the detached mean. The setting is saved with the model."""
+    model = pendulum_iql(actor_loss_type="ddpg_awr", actor_bc_weight=2.0, temperature=0.5, max_weight=3.0)
     before, batch, logged = one_recorded_update(model, 16)
 
     with th.no_grad():
@@ -166,25 +126,24 @@ def test_the_ddpg_bc_actor_follows_the_critics_normalised_value_anchored_to_the_
         squared_errors = ((th.tanh(mean_actions) - batch.actions) ** 2).mean(dim=1)
         q_data = th.min(*before.critic_target(batch.observations, batch.actions)).squeeze(1)
         weights = th.exp(0.5 * (q_data - model.value_net(batch.observations).squeeze(1))).clamp(max=3.0)
-        anchor = squared_errors.mean() if actor_loss_type == "ddpg_bc" else (weights * squared_errors).mean() / weights.mean()
+        anchor = (weights * squared_errors).mean() / weights.mean()
         spread = -th.distributions.Normal(th.tanh(mean_actions), log_std.exp()).log_prob(batch.actions).sum(-1).mean()
         by_hand = -q_pi.mean() / q_pi.abs().mean() + 2.0 * anchor + spread
-    if actor_loss_type == "ddpg_awr":
-        assert weights.std() > 0.01  # unequal weights: the weighted anchor differs from the plain one
+    assert weights.std() > 0.01  # unequal weights: the weighted anchor differs from the plain one
     assert logged["train/actor_loss"] == pytest.approx(by_hand.item(), rel=1e-5)
     assert logged["train/actor_bc_loss"] == pytest.approx(squared_errors.mean().item(), rel=1e-5)
     model.save(tmp_path / "model.zip")
     loaded = IQL.load(tmp_path / "model.zip")
-    assert (loaded.actor_loss_type, loaded.actor_bc_weight) == (actor_loss_type, 2.0)
+    assert (loaded.actor_loss_type, loaded.actor_bc_weight) == ("ddpg_awr", 2.0)
 
 
-def test_the_ddpg_bc_actor_climbs_a_known_critic_as_far_as_its_anchor_lets_it():
+def test_the_ddpg_awr_actor_climbs_a_known_critic_as_far_as_its_anchor_lets_it():
     """Critics that value an action by its first coordinate (Q = a_0 + 2, fixed): without the anchor the actor's
-    deterministic action climbs to a_0 near 1; with a heavy anchor it stays near the data's actions."""
+    deterministic action climbs to a_0 near 1; with a heavy anchor it stays near the data's actions (all 0)."""
     final = {}
     for weight in (0.0, 50.0):
         model = IQL("MlpPolicy", LinearCriticEnv(), buffer_size=64, batch_size=32, policy_kwargs={"net_arch": []},
-                    actor_loss_type="ddpg_bc", actor_bc_weight=weight, learning_rate=1e-2, seed=0)  # fmt: skip
+                    actor_loss_type="ddpg_awr", actor_bc_weight=weight, learning_rate=1e-2, seed=0)  # fmt: skip
         observations = np.random.default_rng(0).uniform(-1, 1, (64, 2)).astype(np.float32)
         for obs in observations:
             model.replay_buffer.add(obs, obs, np.zeros(3, np.float32), np.zeros(1), np.zeros(1), [{}])
@@ -475,15 +434,13 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"temperature": -1.0}, r"temperature must be a (finite )?number >= 0, got -1.0"),
         ({"max_weight": 0.0}, r"max_weight must be a (finite )?number > 0, got 0.0"),
         ({"reward_bias": float("nan")}, "reward_bias must be a finite number, got nan"),
-        ({"value_loss_type": "l1"}, "value_loss_type must be one of 'squared', 'bce', got 'l1'"),
         ({"q_agg": "max"}, "q_agg must be one of 'min', 'mean', got 'max'"),
-        ({"actor_loss_type": "td3"}, "actor_loss_type must be one of 'awr', 'ddpg_bc', 'ddpg_awr', got 'td3'"),
+        ({"actor_loss_type": "td3"}, "actor_loss_type must be one of 'awr', 'ddpg_awr', got 'td3'"),
         ({"actor_bc_weight": -1.0}, r"actor_bc_weight must be a (finite )?number >= 0, got -1.0"),
         ({"target_floor": float("-inf")}, "target_floor must be a finite number, got -inf"),
         ({"target_floor": "0"}, "target_floor must be a finite number, got '0'"),
         ({"actor_average_tau": 0.0}, r"actor_average_tau must be a number in \(0, 1\] or None, got 0.0"),
         ({"actor_average_tau": "0.01"}, r"actor_average_tau must be a number in \(0, 1\] or None, got '0.01'"),
-        ({"value_loss_type": "bce"}, r'value_loss_type="bce" needs the critics\' rewards .* in \[0, 1\], the data give -1'),
     ],
 )
 def test_settings_outside_their_range_are_one_line(keywords, message):

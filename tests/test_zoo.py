@@ -590,16 +590,16 @@ def test_a_fine_tuning_with_a_bad_setting_or_dataset_ends_on_one_line_and_leaves
 
 
 def test_iql_with_best_of_n_trains_plays_and_evaluates_through_the_zoo_acting_by_ranking(zoo):
-    """``--algo iql`` with ``best_of_n``, the DDPG+BC actor and a linear schedule of the actor's own from the command
+    """``--algo iql`` with ``best_of_n``, the DDPG+AWR actor and a linear schedule of the actor's own from the command
     line: the model saves them (the actor's rate decayed from 1e-3 over the 30 steps, the critics' constant), and enjoy
     and evaluate act with best-of-N."""
     zoo.run("--algo", "iql", "--env", "Panda-v0", "-n", "30", "--eval-freq", "15", "--eval-episodes", "1", "-f", "iql",
-            "--seed", "0", *TINY, "best_of_n:4", "actor_loss_type:'ddpg_bc'", "actor_learning_rate:'lin_1e-3'")  # fmt: skip
+            "--seed", "0", *TINY, "best_of_n:4", "actor_loss_type:'ddpg_awr'", "actor_learning_rate:'lin_1e-3'")  # fmt: skip
     model = zoo.root / "iql" / "iql" / "Panda-v0_1" / "Panda-v0.zip"
     code = (f"from sb3_cql import IQL; m = IQL.load('{model}'); rate = lambda o: o.param_groups[0]['lr']; "
             "print(m.policy.best_of_n, m.gamma, m.actor_loss_type, m.actor_lr_schedule(0.5), "
             "rate(m.actor.optimizer) < 1e-4, rate(m.critic.optimizer) == m.lr_schedule(0.5))")  # fmt: skip
-    assert zoo.python(code) == "4 0.999 ddpg_bc 0.0005 True True"
+    assert zoo.python(code) == "4 0.999 ddpg_awr 0.0005 True True"
     zoo.run("--algo", "iql", "--env", "Panda-v0", "-f", "iql", "--exp-id", "1", "-n", "12", "--no-render",
             module="rl_zoo3.enjoy")  # fmt: skip
     assert "Panda-v0" in zoo.run(str(model), "--algo", "iql", "-n", "1", "--env", "Panda-v0", module="sb3_cql.evaluate")

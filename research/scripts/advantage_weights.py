@@ -59,7 +59,7 @@ def advantages(model: IQL, observations: np.ndarray, actions: np.ndarray) -> tup
             obs = th.as_tensor(observations[start : start + BATCH], dtype=th.float32, device=model.device)
             act = th.as_tensor(actions[start : start + BATCH], dtype=th.float32, device=model.device)
             q_values.append(model.target_q_values(obs, act).flatten().cpu().numpy())
-            values.append(model.as_values(model.value_net(obs)).flatten().cpu().numpy())
+            values.append(model.state_values(obs).flatten().cpu().numpy())
     q = np.concatenate(q_values)
     return q, q - np.concatenate(values)
 

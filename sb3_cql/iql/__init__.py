@@ -1,4 +1,4 @@
-from sb3_cql.iql.iql import IQL, expectile_bce_loss, expectile_loss
+from sb3_cql.iql.iql import IQL, expectile_loss
 from sb3_cql.iql.policies import CnnPolicy, IQLPolicy, MlpPolicy, MultiInputPolicy
 
-__all__ = ["IQL", "CnnPolicy", "IQLPolicy", "MlpPolicy", "MultiInputPolicy", "expectile_bce_loss", "expectile_loss"]
+__all__ = ["IQL", "CnnPolicy", "IQLPolicy", "MlpPolicy", "MultiInputPolicy", "expectile_loss"]

@@ -16,7 +16,6 @@ from torch.nn import functional as F
 from sb3_cql.common.offline import (
     OfflineSAC,
     SettingError,
-    behaviour_cloning_loss,
     check_finite,
     check_non_negative,
     finite_loss_value,
@@ -27,6 +26,11 @@ from sb3_cql.iql.policies import CnnPolicy, IQLPolicy, MlpPolicy, MultiInputPoli
 if TYPE_CHECKING:
     from minari import MinariDataset
 
+#: The actor's extractions from the critics (``actor_loss_type``).
+ACTOR_LOSS_TYPES = ("awr", "ddpg_awr")
+#: The combinations of the target twins (``q_agg``).
+Q_AGGREGATIONS = ("min", "mean")
+
 
 def expectile_loss(differences: th.Tensor, expectile: float) -> th.Tensor:
     """The expectile regression loss of IQL's value, ``mean(|expectile - 1(u < 0)| * u^2)`` over the
@@ -36,58 +40,30 @@ def expectile_loss(differences: th.Tensor, expectile: float) -> th.Tensor:
     return (weight * differences.pow(2)).mean()
 
 
-def expectile_bce_loss(logits: th.Tensor, targets: th.Tensor, expectile: float) -> th.Tensor:
-    """The expectile loss on the success scale (``value_loss_type="bce"``): the binary cross-entropy of the value's
-    ``logits`` against the ``targets`` in [0, 1], each weighted ``|expectile - 1(u < 0)|`` with ``u = target -
-    sigmoid(logit)``. At ``expectile`` 0.5 its minimum is the mean of the targets (SHARSA's value loss, halved, as
-    :func:`expectile_loss` halves the squared error); above 0.5 it leans to the higher targets."""
-    weight = th.where(targets < th.sigmoid(logits), 1.0 - expectile, expectile)
-    return (weight * F.binary_cross_entropy_with_logits(logits, targets, reduction="none")).mean()
-
-
 class IQL(OfflineSAC):
     """Implicit Q-Learning (Kostrikov, Nair and Levine 2021, https://arxiv.org/abs/2110.06169), trained offline.
 
-    Every loss reads only the data's actions, so the values stay on the scale of the data's returns (no policy sample
-    and no maximum in the backup, nothing pushed down). Each gradient step, in the reference code's order:
+    Every loss reads only the data's actions, so the values stay on the scale of the data's returns. Each gradient
+    step, in the reference code's order (:meth:`train`, one hook a loss):
 
-    - the value, by expectile regression on the target critics at the data's actions:
-      ``L_V = E[|expectile - 1(u < 0)| u^2]``, ``u = min_i Q'_i(s, a) - V(s)`` (:func:`expectile_loss`; the twins'
-      mean instead of their minimum with ``q_agg="mean"``);
-    - the actor, by advantage-weighted regression: ``L_pi = -E[min(exp(temperature * (Q'(s, a) - V(s))),
-      max_weight) * log pi(a | s)]``, ``pi`` the Gaussian of :class:`~sb3_cql.iql.policies.IQLActor`;
-    - the twin critics, by TD to the value of the next state: ``L_Q = sum_i E[(Q_i(s, a) - r - (1 - d) * discount *
-      V(s'))^2]`` (each critic's full mean squared error, as the references), with SB3's n-step ``discounts``
-      (``n_steps``, ``action_chunk``) and the critics' rewards ``reward_scale * r + reward_bias``;
-    - the target critics, by Polyak averaging with ``tau``.
+    - the value, by expectile regression on the target critics at the data's actions (:meth:`value_loss`):
+      ``L_V = E[|expectile - 1(u < 0)| u^2]``, ``u = Q'(s, a) - V(s)``, ``Q'`` the target twins' minimum (their mean
+      with ``q_agg="mean"``, :meth:`target_q_values`);
+    - the actor, by advantage-weighted regression (:meth:`actor_loss`): ``L_pi = -E[w log pi(a | s)]``, ``w =
+      min(exp(temperature * (Q'(s, a) - V(s))), max_weight)``, ``pi`` the Gaussian of
+      :class:`~sb3_cql.iql.policies.IQLActor`; with ``actor_loss_type="ddpg_awr"`` its deterministic action climbs
+      the critics instead, anchored to the data by the same weights (:meth:`ddpg_actor_loss`);
+    - the twin critics, by TD to the value of the next state (:meth:`compute_target`, :meth:`critic_loss`):
+      ``L_Q = sum_i E[(Q_i(s, a) - r - (1 - d) * discount * V(s'))^2]``, with SB3's n-step discounts and the critics'
+      rewards ``reward_scale * r + reward_bias``, the target raised to ``target_floor`` where set;
+    - the target critics, by Polyak averaging with ``tau``; with ``actor_average_tau``, an average of the actor too,
+      which the model acts with.
 
-    With ``actor_loss_type="ddpg_bc"`` the actor follows the critics' gradient instead, anchored to the data (DDPG+BC,
-    the extraction Park et al. 2024, https://arxiv.org/abs/2406.09329, found ahead of AWR on most tasks, as in
-    TD3+BC): ``L_pi = -E[Q(s, tanh(mu(s)))] / E[|Q(s, tanh(mu(s)))|] + actor_bc_weight * E[(tanh(mu(s)) - a)^2]``,
-    ``Q`` the minimum of the twins and the denominator detached (:func:`~sb3_cql.common.offline.behaviour_cloning_loss`
-    and the normalisation of CQL's ``actor_bc_weight``); the spread, which only the actor's samples and best-of-N
-    use, is fitted to the data's actions around the detached mean by likelihood. ``"ddpg_awr"`` weights each sample's
-    squared error in that imitation by AWR's weight, ``min(exp(temperature * (Q'(s, a) - V(s))), max_weight)``,
-    divided by the batch's mean weight (so ``actor_bc_weight`` keeps its scale): the critics' gradient refines the
-    action while the imitation leans to the data's better actions.
-
-    With ``value_loss_type="bce"`` the critics and the value are on the success scale, as SHARSA's (Park et al. 2025):
-    each network gives a logit, its value is the sigmoid of it (in (0, 1)), the TD targets ``r + (1 - d) * discount *
-    sigmoid(V(s'))`` and the twins' values are regressed by binary cross-entropy (:func:`expectile_bce_loss` for the
-    value), so no value can sink below a failure's 0 or rise above a success's 1. It needs rewards that are discounted
-    success probabilities: ``reward_scale * r + reward_bias`` in [0, 1] at every step of the data (a sparse 0/1
-    reward that ends the episode).
-
-    Everything else is :class:`~sb3_cql.common.OfflineSAC`'s: datasets (Minari ids, objects, SB3 buffers),
-    ``n_steps``, ``action_chunk``, the observation normaliser, ``save``/``load``, callbacks and online fine-tuning
-    (``online_fraction``: the same losses on mixed batches, acting with samples of the actor). With ``best_of_n``
-    the model acts by ranking ``best_of_n`` samples of its actor by its critics (SHARSA's best-of-N), which uses the
-    critics where the actor's regression only weights the data.
-
-    Defaults are the reference implementations' for a generic task (ikostrikov/implicit_q_learning's MuJoCo settings
-    and d3rlpy's ``IQLConfig``: learning rates 3e-4, batch 256, ``expectile`` 0.7, ``temperature`` 3, weights
-    clipped at 100, ``tau`` 5e-3, gamma 0.99, 2 x 256 networks, raw observations); its AntMaze settings, for sparse
-    long-horizon goals, are ``expectile`` 0.9, ``temperature`` 10, rewards ``r - 1``.
+    Everything else is :class:`~sb3_cql.common.OfflineSAC`'s: datasets, ``n_steps``, ``action_chunk``, the
+    observation normaliser, ``save``/``load``, callbacks, best-of-N acting and online fine-tuning (``online_fraction``:
+    the same losses on mixed batches). The defaults are the references' for a generic task
+    (ikostrikov/implicit_q_learning's MuJoCo settings, d3rlpy's ``IQLConfig``); ``hyperparams/iql.yml`` and
+    ``hyperparams/iql_yaw.yml`` hold the Panda tasks' settings.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with IQL's
         actor and value network, :mod:`sb3_cql.iql.policies`).
@@ -99,61 +75,39 @@ class IQL(OfflineSAC):
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
     :param batch_size: minibatch size of each gradient step.
     :param tau: Polyak coefficient of the target critics.
-    :param gamma: discount factor (up to 1; 0.999 for goals hundreds of steps after the choice that decides them).
+    :param gamma: discount factor.
     :param expectile: the value's expectile of Q over the data's actions, in [0.5, 1): 0.5 is SARSA's mean, higher is
         closer to the best action the data show.
-    :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning); unused by
-        ``"ddpg_bc"``.
+    :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning).
     :param max_weight: the largest advantage weight.
-    :param actor_loss_type: how the actor is extracted from the critics: ``"awr"`` (the paper's advantage-weighted
-        regression), ``"ddpg_bc"`` (the critics' gradient at the actor's action, anchored to the data) or
-        ``"ddpg_awr"`` (the same, the anchor weighted by AWR's weights); see above.
-    :param actor_bc_weight: with ``"ddpg_bc"`` and ``"ddpg_awr"``, the weight of the imitation against the critics'
-        normalised value, as CQL's (TD3+BC's ``alpha`` is ``1 / actor_bc_weight``; its default 2.5 is 0.4 here).
+    :param actor_loss_type: ``"awr"`` (the paper's advantage-weighted regression) or ``"ddpg_awr"`` (the critics'
+        gradient at the actor's action, anchored to the data's actions by the advantage weights).
+    :param actor_bc_weight: with ``"ddpg_awr"``, the anchor's weight against the critics' normalised value, as CQL's.
     :param target_update_interval: gradient steps between target updates.
-    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
-        rewards); a sparse 0/1 reward that ends the episode needs neither: the values are then the discounted
-        probability of success, in [0, 1].
+    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's).
     :param reward_bias: see ``reward_scale``.
-    :param value_loss_type: ``"squared"`` (the references' squared errors) or ``"bce"`` (values on the success scale,
-        trained by binary cross-entropy; see above).
-    :param q_agg: how the twin target critics combine into the value's target and the advantages: ``"min"`` (the
-        references') or ``"mean"`` (SHARSA's other choice; the minimum's downward bias compounds over long backups).
-        Best-of-N ranks by the minimum either way.
-    :param target_floor: the least TD target the critics learn, in their units (after ``reward_scale`` and
-        ``reward_bias``): a target below it is raised to it. ``None`` (the default, the references') leaves the
-        targets as they are. Rewards of at least 0 give no return below 0 (``reward_bias / (1 - gamma)`` with a
-        negative ``reward_bias``), and a floor there keeps the twins' minimum from sinking the values below every
-        return the data can have over long backups.
-    :param actor_average_tau: act with an exponential moving average of the actor's weights: after each of the
-        actor's steps the average moves towards it by this Polyak coefficient (``average = (1 - actor_average_tau) *
-        average + actor_average_tau * actor``; 0.001 averages over about the last 1,000 steps), and the model acts with
-        the average (``predict``, evaluations, best-of-N's candidates; :class:`~sb3_cql.iql.policies.IQLPolicy`'s
-        ``actor_average``), while the actor goes on learning. It damps the swings of an actor that follows a moving
-        critic between one checkpoint and the next. ``None`` (the default, the references'): act with the actor.
-    :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics
-        (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the model. ``1``: the actor's own action.
-    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's (``1``, the default: the
-        actor's own distribution); saved with the model.
-    :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
-        ``False`` (the default, as the references) reads them raw; ``None`` z-scores them for an ``MlpPolicy`` on Box
-        observations. On a sparse task of hand-made data, z-scored observations made the critics' advantages noisier
-        and the advantage-weighted actor failed where raw ones succeeded, in d3rlpy's IQL too (``docs/benchmarks.md``).
-    :param online_fraction: ``None`` (the default) trains offline; a fraction fine-tunes online with the offline data
-        kept (:class:`~sb3_cql.common.OfflineSAC`).
+    :param q_agg: how the target twins combine into the value's target and the advantages: ``"min"`` (the
+        references') or ``"mean"`` (best-of-N ranks by the minimum either way).
+    :param target_floor: the least TD target, in the critics' units: a target below it is raised to it; ``None``
+        (the references') leaves the targets as they are.
+    :param actor_average_tau: act with an exponential moving average of the actor, moved towards it by this Polyak
+        coefficient after each of its steps (saved with the model); ``None`` (the references'): act with the actor.
+    :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics; saved with the model.
+    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's; saved with the model.
+    :param normalize_observations: z-score the observations with the dataset's statistics inside the policy;
+        ``False`` (the references') reads them raw; ``None`` z-scores them for an ``MlpPolicy`` on Box observations.
+    :param online_fraction: ``None`` trains offline; a fraction fine-tunes online with the offline data kept.
     :param online_buffer_size: capacity of the online transitions when fine-tuning.
     :param learning_starts: env steps of uniform random actions before training starts, when fine-tuning (SAC's).
     :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
     :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's).
     :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``).
     :param deterministic_rollouts: when fine-tuning, act with the deterministic action plus ``action_noise``.
-    :param action_chunk: actions per decision (Q-chunking): the actor and the critics work on chunks, the TD target
-        spans the chunk; each chunk runs open loop when the model acts. ``1``: one action a state.
+    :param action_chunk: actions per decision (Q-chunking); ``1``: one action a state.
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
     :param optimize_memory_usage: SAC's; only ``False``.
-    :param n_steps: SB3's n-step returns: the TD target sums up to ``n_steps`` rewards within an episode and
-        bootstraps on ``V`` with ``gamma`` to the power of the steps summed.
+    :param n_steps: SB3's n-step returns: the TD target sums up to ``n_steps`` rewards and bootstraps on ``V``.
     :param stats_window_size: episodes averaged in the rollout logs when fine-tuning (SAC's).
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ``critic_layer_norm``, ...).
@@ -190,7 +144,6 @@ class IQL(OfflineSAC):
         target_update_interval: int = 1,
         reward_scale: float = 1.0,
         reward_bias: float = 0.0,
-        value_loss_type: str = "squared",
         q_agg: str = "min",
         target_floor: float | None = None,
         actor_average_tau: float | None = None,
@@ -224,7 +177,6 @@ class IQL(OfflineSAC):
         self.actor_bc_weight = actor_bc_weight
         self.reward_scale = reward_scale
         self.reward_bias = reward_bias
-        self.value_loss_type = value_loss_type
         self.q_agg = q_agg
         self.target_floor = target_floor
         self.actor_average_tau = actor_average_tau
@@ -279,11 +231,7 @@ class IQL(OfflineSAC):
         tau = self.actor_average_tau
         if tau is not None and not (isinstance(tau, (int, float)) and not isinstance(tau, bool) and 0 < tau <= 1):
             raise SettingError(f"actor_average_tau must be a number in (0, 1] or None, got {tau!r}")
-        for name, choices in (
-            ("value_loss_type", ("squared", "bce")),
-            ("q_agg", ("min", "mean")),
-            ("actor_loss_type", ("awr", "ddpg_bc", "ddpg_awr")),
-        ):
+        for name, choices in (("q_agg", Q_AGGREGATIONS), ("actor_loss_type", ACTOR_LOSS_TYPES)):
             if getattr(self, name) not in choices:
                 raise SettingError(f"{name} must be one of {', '.join(map(repr, choices))}, got {getattr(self, name)!r}")
         if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
@@ -301,35 +249,11 @@ class IQL(OfflineSAC):
         super()._create_aliases()
         self.value_net = self.policy.value_net
 
-    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
-        """OfflineSAC's, then, on the success scale, a check that the critics' rewards are in [0, 1]."""
-        super()._fill_from_dataset(dataset)
-        if self.value_loss_type == "bce":
-            rewards = self.reward_scale * self.replay_buffer.rewards[: self.replay_buffer.size()] + self.reward_bias
-            if rewards.size and (rewards.min() < 0 or rewards.max() > 1):
-                raise SettingError(
-                    f'value_loss_type="bce" needs the critics\' rewards (reward_scale * reward + reward_bias) in [0, 1], '
-                    f"the data give {rewards.min():g} to {rewards.max():g}: set reward_scale and reward_bias so that a "
-                    'success is 1 and every other step 0, or use value_loss_type="squared"'
-                )
-
-    def as_values(self, outputs: th.Tensor) -> th.Tensor:
-        """The critics' or the value network's ``outputs`` as values: themselves, or their sigmoid on the success
-        scale (``value_loss_type="bce"``)."""
-        return th.sigmoid(outputs) if self.value_loss_type == "bce" else outputs
-
-    def target_q_values(self, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
-        """The target twins' values of the data's actions, combined by ``q_agg`` (their minimum or their mean)."""
-        q_values = self.as_values(th.cat(self.critic_target(observations, actions), dim=1))
-        if self.q_agg == "mean":
-            return q_values.mean(dim=1, keepdim=True)
-        return q_values.min(dim=1, keepdim=True).values
-
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """IQL's update (the class docstring), ``gradient_steps`` times: the value, the actor, the critics, the
-        targets. Logs SB3's ``train/actor_loss`` and ``train/critic_loss``, and ``train/value_loss``,
-        ``train/iql_q_data``, ``train/iql_value``, ``train/iql_advantage``, ``train/iql_weight`` (the mean
-        advantage weight), and with the DDPG extractions ``train/actor_bc_loss`` (their imitation, unweighted)."""
+        """IQL's update (the class docstring), ``gradient_steps`` times: :meth:`value_loss`, :meth:`actor_loss`,
+        :meth:`compute_target` and :meth:`critic_loss`, then the targets' Polyak step. Logs SB3's ``train/actor_loss``
+        and ``train/critic_loss``, ``train/value_loss`` and IQL's ``train/iql_q_data``, ``train/iql_value``,
+        ``train/iql_advantage`` and ``train/iql_weight`` (the mean advantage weight)."""
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.critic.optimizer, self.value_net.optimizer])
         update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
@@ -339,38 +263,28 @@ class IQL(OfflineSAC):
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
 
+            # The value: an expectile of the target critics' values of the data's actions.
             with th.no_grad():
                 q_data = self.target_q_values(replay_data.observations, replay_data.actions)
-            value_output = self.value_net(replay_data.observations)
-            if self.value_loss_type == "bce":
-                value_loss = expectile_bce_loss(value_output, q_data, self.expectile)
-            else:
-                value_loss = expectile_loss(q_data - value_output, self.expectile)
+            value_loss = self.value_loss(replay_data, q_data)
             self._step(self.value_net.optimizer, value_loss, "IQL's value loss")
 
+            # The actor: the data's actions weighted by their advantages under the value just updated.
             with th.no_grad():
-                value = self.as_values(self.value_net(replay_data.observations))
+                value = self.state_values(replay_data.observations)
                 advantage = q_data - value
             weights = th.exp(self.temperature * advantage).clamp(max=self.max_weight).squeeze(1)
-            if self.actor_loss_type == "awr":
-                log_prob = self.actor.log_prob_of(replay_data.observations, replay_data.actions)
-                actor_loss = -(weights * log_prob).mean()
-            else:
-                imitation_weights = weights / weights.mean() if self.actor_loss_type == "ddpg_awr" else None
-                actor_loss = self.ddpg_bc_actor_loss(replay_data, logs, imitation_weights)
+            actor_loss = self.actor_loss(replay_data, weights, logs)
             self._step(self.actor.optimizer, actor_loss, "IQL's actor loss")
-            if self.actor_average_tau is not None:  # the policy then keeps an average (_setup_model)
-                polyak_update(self.actor.parameters(), self.policy.actor_average.parameters(), self.actor_average_tau)
+            self.update_actor_average()
 
+            # The critics: TD to the value of the next state.
             with th.no_grad():
                 target_q_values = self.compute_target(replay_data, discounts)
-            current_q_values = self.critic(replay_data.observations, replay_data.actions)
-            if self.value_loss_type == "bce":
-                critic_loss = sum(F.binary_cross_entropy_with_logits(q, target_q_values) for q in current_q_values)
-            else:
-                critic_loss = sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
+            critic_loss = self.critic_loss(replay_data, target_q_values)
             critic_loss_value = self._step(self.critic.optimizer, critic_loss, "IQL's critic loss")
 
+            # The target critics.
             self._n_updates += 1
             if self._n_updates % self.target_update_interval == 0:
                 polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
@@ -391,27 +305,61 @@ class IQL(OfflineSAC):
         for key, values in logs.items():
             self.logger.record(key, float(np.mean(values)))
 
-    def ddpg_bc_actor_loss(
-        self,
-        replay_data: ReplayBufferSamples,
-        logs: dict[str, list[float]],
-        imitation_weights: th.Tensor | None = None,
+    # The value.
+
+    def target_q_values(self, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        """``Q'(s, a)``: the target twins' values of ``actions``, combined by ``q_agg`` (their minimum or their mean),
+        ``(batch, 1)``; the value's target and the advantages."""
+        q_values = th.cat(self.critic_target(observations, actions), dim=1)
+        if self.q_agg == "mean":
+            return q_values.mean(dim=1, keepdim=True)
+        return q_values.min(dim=1, keepdim=True).values
+
+    def state_values(self, observations: th.Tensor) -> th.Tensor:
+        """``V(s)`` as the advantages and the TD target read it: the value network's output, ``(batch, 1)``."""
+        return self.value_net(observations)
+
+    def value_loss(self, replay_data: ReplayBufferSamples, q_data: th.Tensor) -> th.Tensor:
+        """``L_V``: the expectile regression of ``V(s)`` on ``q_data``, the batch's ``Q'(s, a)``
+        (:func:`expectile_loss`)."""
+        return expectile_loss(q_data - self.value_net(replay_data.observations), self.expectile)
+
+    # The actor.
+
+    def actor_loss(self, replay_data: ReplayBufferSamples, weights: th.Tensor, logs: dict[str, list[float]]) -> th.Tensor:
+        """``L_pi`` from the advantage weights ``w`` of the batch's actions, ``(batch,)``: advantage-weighted regression,
+        ``-mean(w * log pi(a | s))``, or with ``actor_loss_type="ddpg_awr"`` :meth:`ddpg_actor_loss` with the anchor
+        weighted by ``w`` over the batch's mean weight (so ``actor_bc_weight`` keeps its scale)."""
+        if self.actor_loss_type == "ddpg_awr":
+            return self.ddpg_actor_loss(replay_data, weights / weights.mean(), logs)
+        return -(weights * self.actor.log_prob_of(replay_data.observations, replay_data.actions)).mean()
+
+    def ddpg_actor_loss(
+        self, replay_data: ReplayBufferSamples, imitation_weights: th.Tensor, logs: dict[str, list[float]]
     ) -> th.Tensor:
-        """The actor's loss with ``actor_loss_type`` ``"ddpg_bc"`` or ``"ddpg_awr"`` (the class docstring): the
-        critics' minimum at the actor's deterministic action, divided by its batch mean ``|Q|`` (detached), against
-        ``actor_bc_weight`` times the imitation of the data's actions, each sample's squared error weighted by
-        ``imitation_weights`` (``(batch,)``, ``None``: equally); plus the spread's likelihood of the data's actions
-        around the detached mean. Logs ``train/actor_bc_loss``, the unweighted imitation."""
+        """TD3+BC's actor loss with each sample's imitation weighted: ``-mean(Q) / mean(|Q|) + actor_bc_weight *
+        mean(imitation_weights * |tanh(mu(s)) - a|^2 / action_dim)``, ``Q`` the critics' minimum at the actor's
+        deterministic action and the denominator detached (on a scale of 1 whatever the rewards), plus the likelihood
+        of the data's actions under the spread around the detached mean (only the actor's samples and best-of-N use
+        the spread). The critics' gradient refines the action while the imitation leans to the data's better actions.
+        Logs ``train/actor_bc_loss``, the imitation unweighted."""
         mean_actions, log_std, _ = self.actor.get_action_dist_params(replay_data.observations)
         actions_pi = th.tanh(mean_actions)
-        q_pi = self.as_values(th.cat(self.critic(replay_data.observations, actions_pi), dim=1)).min(dim=1).values
-        bc_loss = behaviour_cloning_loss(mean_actions, replay_data.actions)
-        logs.setdefault("train/actor_bc_loss", []).append(bc_loss.item())
-        if imitation_weights is not None:
-            bc_loss = (imitation_weights * (actions_pi - replay_data.actions).pow(2).mean(dim=-1)).mean()
+        q_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1).min(dim=1).values
+        squared_errors = (actions_pi - replay_data.actions).pow(2).mean(dim=-1)
+        logs.setdefault("train/actor_bc_loss", []).append(squared_errors.mean().item())
         spread = th.distributions.Normal(actions_pi.detach(), log_std.exp())
         spread_loss = -spread.log_prob(replay_data.actions).sum(dim=-1).mean()
-        return -q_pi.mean() / q_pi.abs().mean().detach().clamp(min=1e-6) + self.actor_bc_weight * bc_loss + spread_loss
+        q_loss = -q_pi.mean() / q_pi.abs().mean().detach().clamp(min=1e-6)
+        return q_loss + self.actor_bc_weight * (imitation_weights * squared_errors).mean() + spread_loss
+
+    def update_actor_average(self) -> None:
+        """With ``actor_average_tau``, move the average the model acts with towards the actor just updated:
+        ``average = (1 - actor_average_tau) * average + actor_average_tau * actor``."""
+        if self.actor_average_tau is not None:  # the policy then keeps an average (_setup_model)
+            polyak_update(self.actor.parameters(), self.policy.actor_average.parameters(), self.actor_average_tau)
+
+    # The critics.
 
     def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
         """The rewards the critics learn from: ``reward_scale * reward + reward_bias`` a step, summed over an n-step
@@ -420,14 +368,16 @@ class IQL(OfflineSAC):
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
         """The critics' TD target, ``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`; the
-        samples' ``discounts`` for n-step returns, else ``gamma``), raised to ``target_floor`` where it is set; on the
-        success scale ``V(s')`` is the value network's sigmoid and the target is kept in [0, 1] (a reward of 1 that
-        does not end the episode, met online, would take it above)."""
-        next_values = self.as_values(self.value_net(replay_data.next_observations))
+        samples' ``discounts`` for n-step returns, else ``gamma``), raised to ``target_floor`` where it is set."""
+        next_values = self.state_values(replay_data.next_observations)
         target = self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
-        if self.target_floor is not None:
-            target = target.clamp(min=self.target_floor)
-        return target.clamp(0.0, 1.0) if self.value_loss_type == "bce" else target
+        return target if self.target_floor is None else target.clamp(min=self.target_floor)
+
+    def critic_loss(self, replay_data: ReplayBufferSamples, target_q_values: th.Tensor) -> th.Tensor:
+        """``L_Q``: each critic's mean squared error to the TD target at the data's actions, summed over the twins (the
+        references' full errors, not SAC's halved ones)."""
+        current_q_values = self.critic(replay_data.observations, replay_data.actions)
+        return sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
 
     def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, description: str) -> float:
         """One optimizer step on ``loss``, refused (:class:`~sb3_cql.common.TrainingDivergedError`) before it is taken

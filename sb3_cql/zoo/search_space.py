@@ -71,7 +71,7 @@ def sample_iql_params(trial: optuna.Trial, n_actions: int, n_envs: int, addition
         "n_steps": trial.suggest_categorical("n_steps", N_STEPS),
         "best_of_n": trial.suggest_categorical("best_of_n", [1, 8, 32]),
         "q_agg": trial.suggest_categorical("q_agg", ["min", "mean"]),
-        "actor_loss_type": trial.suggest_categorical("actor_loss_type", ["awr", "ddpg_bc", "ddpg_awr"]),
+        "actor_loss_type": trial.suggest_categorical("actor_loss_type", ["awr", "ddpg_awr"]),
     }
     if params["actor_loss_type"] != "awr":
         params["actor_bc_weight"] = trial.suggest_float("actor_bc_weight", 0.4, 10.0, log=True)
