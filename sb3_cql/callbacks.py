@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_cql.data import ensure_dataset, fill_replay_buffer
+from sb3_cql.data import fill_replay_buffer
 
 
 class PrefillReplayBuffer(BaseCallback):
@@ -31,8 +31,8 @@ class PrefillReplayBuffer(BaseCallback):
         if buffer is None:
             raise TypeError(f"PrefillReplayBuffer needs an off-policy model, got {type(self.model).__name__}")
         before = buffer.size()
-        data = ensure_dataset(self.dataset)
-        self.model.replay_buffer = fill_replay_buffer(data, self.model.observation_space, self.model.action_space, buffer)
+        self.model.replay_buffer = fill_replay_buffer(self.dataset, self.model.observation_space, self.model.action_space,
+                                                      buffer)  # fmt: skip
         if self.verbose:
             print(f"Replay buffer: {self.model.replay_buffer.size() - before} transitions from {self.dataset}")
 

@@ -52,14 +52,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import envs
 from envs.panda_env import check_keywords
 from envs.pd_controller import closing_angles
-from sb3_cql.data.spaces import (  # noqa: F401  (describe_space, env_spaces: importable from here as before)
-    check_spaces,
-    default_action_mode,
-    describe_space,
-    env_kwargs_for,
-    env_name,
-    env_spaces,
-)
+from sb3_cql.data.spaces import check_spaces, default_action_mode, env_kwargs_for, env_name
 from sb3_cql.processes import exit_status, run_command
 
 #: The command's name in its messages.

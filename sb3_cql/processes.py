@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 INTERRUPTED_STATUS = 128 + signal.SIGINT
 TERMINATED_STATUS = 128 + signal.SIGTERM
 #: The package's command lines (``python -m MODULE``), each of which calls :func:`started` after its imports.
-COMMANDS = ("sb3_cql.data", "sb3_cql.evaluate", "sb3_cql.protocol", "sb3_cql.benchmark")
+COMMANDS = ("sb3_cql.data", "sb3_cql.evaluate", "sb3_cql.protocol")
 #: The signals that stop a command as Ctrl-C does: SIGINT and SIGTERM (``kill PID``).
 INTERRUPTS = (signal.SIGINT, signal.SIGTERM)
 #: prctl's option: the signal this process gets when its parent dies (linux/prctl.h).

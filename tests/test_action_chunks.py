@@ -13,7 +13,7 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_cql import BC, CQL
+from sb3_cql import BC, CQL, CalQL
 from sb3_cql.common import ActionChunkReplayBuffer, MixedReplayBuffer
 from sb3_cql.common.policies import OfflinePolicy
 
@@ -72,8 +72,8 @@ def test_the_actor_and_the_critics_work_on_chunks_while_the_model_keeps_the_envs
     model.learn(5)
     with pytest.raises(ValueError, match="n_steps=2 with action_chunk=3"):
         CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=3, n_steps=2)
-    with pytest.raises(ValueError, match="cql_calibrated is not supported with action_chunk"):
-        CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=3, cql_calibrated=True)
+    with pytest.raises(ValueError, match="CalQL does not support action_chunk > 1"):
+        CalQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=3)
     with pytest.raises(ValueError, match="action_chunk must be an integer >= 1, got 0"):
         BC("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), action_chunk=0)
 

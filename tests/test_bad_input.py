@@ -25,11 +25,11 @@ from stable_baselines3.common.envs import FakeImageEnv
 
 from envs.config import ConfigError
 from sb3_cql import BC, CQL
-from sb3_cql.common.offline import SettingError
+from sb3_cql.common import SettingError
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset
 from sb3_cql.data.__main__ import main as data_cli
 from sb3_cql.data.ids import dataset_path, partial_path
-from sb3_cql.data.partial import DatasetFiles
+from sb3_cql.data.store import DatasetFiles
 from sb3_cql.evaluate import main as evaluate_cli
 from sb3_cql.protocol.__main__ import main as benchmark_cli
 

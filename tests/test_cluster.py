@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
-from sb3_cql.data.partial import DatasetFiles
+from sb3_cql.data.store import DatasetFiles
 
 
 @pytest.fixture(scope="module")

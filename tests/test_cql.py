@@ -20,7 +20,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import load_from_pkl
 
 from sb3_cql import BC, CQL
-from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer, SettingError
+from sb3_cql.common import KeywordError, MixedReplayBuffer, ReturnToGoReplayBuffer, SettingError
 from sb3_cql.common.allocator import retain_freed_memory
 from sb3_cql.cql import CalQL, NormalizedFlatten
 from sb3_cql.cql.fused_mlp import relu_mlp, relu_mlp_parameters
@@ -66,13 +66,16 @@ def test_cql_is_an_sb3_off_policy_algorithm_trained_offline(tmp_path):
 
 @pytest.mark.parametrize("options", [{}, {"cql_target_action_gap": 5.0}, {"cql_max_backup": True, "bc_steps": 20},
                                      {"cql_deterministic_backup": False, "ent_coef": 0.1},
-                                     {"cql_calibrated": True, "reward_scale": 2.0}])  # fmt: skip
+                                     {"calibrated": True, "reward_scale": 2.0}])  # fmt: skip
 def test_save_and_load_round_trip(tmp_path, options):
     env = gym.make("Pendulum-v1")
-    model = CQL("MlpPolicy", env, dataset=random_pendulum_buffer(), batch_size=32, policy_kwargs=TINY, seed=1, **options)
+    options = dict(options)
+    algorithm = CalQL if options.pop("calibrated", False) else CQL
+    model = algorithm("MlpPolicy", env, dataset=random_pendulum_buffer(), batch_size=32, policy_kwargs=TINY, seed=1,
+                      **options)  # fmt: skip
     model.learn(50)
     model.save(tmp_path / "cql")
-    loaded = CQL.load(tmp_path / "cql", env=env)
+    loaded = algorithm.load(tmp_path / "cql", env=env)
     assert loaded.replay_buffer.buffer_size == 1  # predicting needs no training buffer
     observations = np.stack([env.observation_space.sample() for _ in range(16)])
     np.testing.assert_array_equal(loaded.predict(observations, deterministic=True)[0],
@@ -83,9 +86,8 @@ def test_save_and_load_round_trip(tmp_path, options):
         assert model.log_alpha_prime.item() != 0.0
         th.testing.assert_close(loaded.log_alpha_prime, model.log_alpha_prime)
         assert loaded.alpha_prime_optimizer.state_dict()["state"]
-    if options.get("cql_calibrated"):
-        assert isinstance(model, CalQL) and isinstance(loaded, CalQL)
-        assert loaded.cql_calibrated and isinstance(loaded.replay_buffer, ReturnToGoReplayBuffer)
+    if algorithm is CalQL:
+        assert type(loaded) is CalQL and isinstance(loaded.replay_buffer, ReturnToGoReplayBuffer)
         model.save_replay_buffer(tmp_path / "buffer")
         loaded.load_replay_buffer(tmp_path / "buffer")
         np.testing.assert_array_equal(loaded.replay_buffer.returns_to_go, model.replay_buffer.returns_to_go)
@@ -210,8 +212,8 @@ def test_calibrated_values_stay_at_the_data_return_where_cql_sinks_below():
     observations = th.as_tensor(buffer.observations[:500, 0])
     means = {}
     for calibrated in (False, True):
-        model = CQL("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64, learning_rate=1e-3,
-                    cql_alpha=10.0, cql_calibrated=calibrated, policy_kwargs=TINY, seed=0)  # fmt: skip
+        model = (CalQL if calibrated else CQL)("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64,
+                                               learning_rate=1e-3, cql_alpha=10.0, policy_kwargs=TINY, seed=0)  # fmt: skip
         model.learn(3000)
         means[calibrated] = q_at_policy_actions(model, observations).mean().item()
     assert means[False] < data_return - 5.0  # measured: -22.2 (return -10)
@@ -237,8 +239,7 @@ def test_calibration_lifts_the_policy_groups_to_the_bound_and_logs_how_often(tmp
     """The conservative term sees max(Q, G) at the policy's actions: with a return-to-go far above every value the
     log-sum-exp is the bound's; with none (-inf, an episode under way) it is plain CQL's."""
     buffer, _ = failing_chain_buffer(gamma=0.9)
-    model = CQL("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64, cql_calibrated=True,
-                policy_kwargs=TINY, seed=0)  # fmt: skip
+    model = CalQL("MlpPolicy", spaces_env(buffer), dataset=buffer, gamma=0.9, batch_size=64, policy_kwargs=TINY, seed=0)
     assert isinstance(model.replay_buffer, ReturnToGoReplayBuffer)
     np.testing.assert_allclose(model.replay_buffer.returns_to_go[: buffer.size()], -10.0, rtol=1e-6)
     data = model.replay_buffer.sample(64)
@@ -263,28 +264,23 @@ def test_calibration_lifts_the_policy_groups_to_the_bound_and_logs_how_often(tmp
     assert "train/cql_bound_rate" in pd.read_csv(tmp_path / "progress.csv").columns
 
 
-def test_cql_calibrated_is_calql_from_construction_and_load(tmp_path):
-    """``CQL(..., cql_calibrated=True)`` is a :class:`CalQL` and trains as one from the same seed; a model saved with
-    the flag loads as one with ``CQL.load``, a plain model given the flag at ``load`` becomes one, and a CalQL is
-    calibrated whatever its ``cql_calibrated``."""
+def test_calql_is_built_directly_and_its_models_load_with_their_class(tmp_path):
+    """``CalQL(...)`` is calibrated from construction (its buffer holds returns-to-go); its saved model loads with
+    ``CalQL.load``, and ``CQL.load`` refuses it in one line naming the class to load it with; a plain CQL model loads as
+    a CalQL (to fine-tune it calibrated); CQL takes no keyword that would make it another class."""
     buffer = random_pendulum_buffer(400)
-    models = []
-    for algorithm, options in ((CQL, {"cql_calibrated": True}), (CalQL, {})):  # each seeded, then trained
-        model = algorithm("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=32, policy_kwargs=TINY, seed=3, **options)
-        assert type(model) is CalQL and model.cql_calibrated and isinstance(model.replay_buffer, ReturnToGoReplayBuffer)
-        models.append(model.learn(30))
-    for first, second in zip(models[0].policy.parameters(), models[1].policy.parameters(), strict=True):
-        th.testing.assert_close(first, second, rtol=0.0, atol=0.0)
-    models[1].save(tmp_path / "calibrated")
-    assert type(CQL.load(tmp_path / "calibrated")) is CalQL
-    assert type(CQL.load(tmp_path / "calibrated", cql_calibrated=False)) is CQL  # as before: the keyword decides
+    model = CalQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=32, policy_kwargs=TINY, seed=3).learn(30)
+    assert isinstance(model.replay_buffer, ReturnToGoReplayBuffer)
+    model.save(tmp_path / "calibrated")
+    assert type(CalQL.load(tmp_path / "calibrated")) is CalQL
+    with pytest.raises(SettingError, match=r"holds a CalQL model: load it with CalQL\.load \(in the zoo, --algo calql\)$"):
+        CQL.load(tmp_path / "calibrated")
     plain = CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, batch_size=32, policy_kwargs=TINY, seed=3)
-    assert type(plain) is CQL and not plain.cql_calibrated and type(plain.replay_buffer) is ReplayBuffer
+    assert type(plain.replay_buffer) is ReplayBuffer
     plain.save(tmp_path / "plain")
-    assert type(CQL.load(tmp_path / "plain")) is CQL
-    assert type(CQL.load(tmp_path / "plain", cql_calibrated=True)) is CalQL
-    assert CalQL.load(tmp_path / "plain").cql_calibrated
-    assert CalQL("MlpPolicy", "Pendulum-v1", dataset=buffer, cql_calibrated=False, policy_kwargs=TINY).cql_calibrated
+    assert type(CQL.load(tmp_path / "plain")) is CQL and type(CalQL.load(tmp_path / "plain")) is CalQL
+    with pytest.raises(KeywordError, match="cql_calibrated"):
+        CQL("MlpPolicy", "Pendulum-v1", dataset=buffer, cql_calibrated=True)
 
 
 def test_online_fine_tuning_keeps_the_offline_data_and_continues_from_its_saved_transitions(tmp_path):
@@ -293,8 +289,8 @@ def test_online_fine_tuning_keeps_the_offline_data_and_continues_from_its_saved_
     transitions, and a loaded model continues with them."""
     offline = random_pendulum_buffer(400)
     env = gym.make("Pendulum-v1")  # episodes of 200 steps
-    model = CQL("MlpPolicy", env, dataset=offline, batch_size=32, policy_kwargs=TINY, cql_calibrated=True,
-                online_fraction=0.5, online_buffer_size=5_000, seed=0)  # fmt: skip
+    model = CalQL("MlpPolicy", env, dataset=offline, batch_size=32, policy_kwargs=TINY, online_fraction=0.5,
+                  online_buffer_size=5_000, seed=0)  # fmt: skip
     before = model.replay_buffer.observations.copy()
     model.set_logger(configure(str(tmp_path / "logs"), ["csv"]))
     model.learn(450, log_interval=1)
@@ -310,7 +306,7 @@ def test_online_fine_tuning_keeps_the_offline_data_and_continues_from_its_saved_
 
     model.save(tmp_path / "tuned")
     model.save_replay_buffer(tmp_path / "tuned_buffer")
-    loaded = CQL.load(tmp_path / "tuned", env=env)
+    loaded = CalQL.load(tmp_path / "tuned", env=env)
     loaded.load_replay_buffer(tmp_path / "tuned_buffer")
     with pytest.raises(ValueError, match="batch_size=32 offline transitions or more"):  # no dataset id to reload
         loaded.learn(10)
@@ -484,7 +480,7 @@ def test_a_replay_buffer_with_a_non_finite_value_is_refused_naming_the_field_and
     buffer = random_pendulum_buffer(64)
     getattr(buffer, field)[7, 0] = value
     getattr(buffer, field)[9, 0] = value
-    with pytest.raises(SettingError, match=f"^dataset: {re.escape(message)}: every value must be finite$"):
+    with pytest.raises(DatasetError, match=f"^dataset: {re.escape(message)}: every value must be finite$"):
         algorithm("MlpPolicy", "Pendulum-v1", dataset=buffer, policy_kwargs=TINY)
 
 

@@ -30,7 +30,7 @@ from sb3_cql.data import (
 )
 from sb3_cql.data import collection as collection_module
 from sb3_cql.data.__main__ import main as data_cli
-from sb3_cql.data.partial import DatasetFiles
+from sb3_cql.data.store import DatasetFiles
 
 
 @pytest.fixture(autouse=True)

@@ -21,7 +21,7 @@ from stable_baselines3 import SAC
 from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, dataset_path, ensure_dataset, load_dataset
 from sb3_cql.data import collection as collection_module
 from sb3_cql.data.ids import SPEC_FILE
-from sb3_cql.data.partial import CRASH_AT_ENV, CRASH_POINTS, DatasetFiles
+from sb3_cql.data.store import CRASH_AT_ENV, CRASH_POINTS, DatasetFiles
 
 DATASET = "sb3cql/Panda-v0/pid-v0"
 #: A collection small enough to run many times: 4 PD episodes of ~178 steps, 2 to a file.

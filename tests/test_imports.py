@@ -89,7 +89,7 @@ def test_no_data_module_imports_one_that_imports_it_back():
 
 
 def test_the_data_package_imports_nothing_of_the_commands():
-    commands = ("sb3_cql.evaluate", "sb3_cql.protocol", "sb3_cql.benchmark", "sb3_cql.zoo")
+    commands = ("sb3_cql.evaluate", "sb3_cql.protocol", "sb3_cql.zoo")
     for name, path in DATA_MODULES.items():
         outside = {module for module in imported_modules(path) if module.startswith(commands)}
         assert not outside, f"{name} imports {outside}"
@@ -112,7 +112,7 @@ LAYERS = [
     {"sb3_cql.cql", "sb3_cql.iql", "sb3_cql.bc", "sb3_cql.callbacks"},
     {"sb3_cql.evaluate", "sb3_cql.zoo"},
     {"sb3_cql.protocol"},
-    {"sb3_cql", "sb3_cql.interrupts", "sb3_cql.benchmark"},  # the package's door, and former names kept importable
+    {"sb3_cql"},  # the package's door
 ]
 
 

@@ -13,7 +13,7 @@ from rollouts import random_rollouts
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.logger import configure
 
-from sb3_cql import BC, CQL
+from sb3_cql import BC, CQL, CalQL
 from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
 from sb3_cql.data import fill_replay_buffer
 
@@ -139,8 +139,8 @@ def hand_made_minari_dataset_buffer(buffer_class: type[ReplayBuffer] | None) -> 
 
 
 def test_calibrated_samples_carry_the_whole_episodes_return_to_go_beside_the_n_step_returns():
-    model = CQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), n_steps=2, gamma=GAMMA, cql_calibrated=True,
-                batch_size=2, policy_kwargs=TINY, normalize_observations=False)  # fmt: skip
+    model = CalQL("MlpPolicy", spaces_env(), dataset=hand_made_buffer(), n_steps=2, gamma=GAMMA, batch_size=2,
+                  policy_kwargs=TINY, normalize_observations=False)  # fmt: skip
     buffer = model.replay_buffer
     assert isinstance(buffer, ReturnToGoReplayBuffer) and buffer.n_steps == 2
     samples = buffer._get_samples(np.arange(8))
@@ -151,8 +151,8 @@ def test_calibrated_samples_carry_the_whole_episodes_return_to_go_beside_the_n_s
 
 
 def test_fine_tuning_with_n_steps_samples_n_step_returns_online_and_offline():
-    model = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(400), n_steps=3, batch_size=32, policy_kwargs=TINY,
-                online_fraction=0.5, cql_calibrated=True, seed=0)  # fmt: skip
+    model = CalQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(400), n_steps=3, batch_size=32, policy_kwargs=TINY,
+                  online_fraction=0.5, seed=0)  # fmt: skip
     model.learn(250)  # more than one episode of 200 steps
     buffer = model.replay_buffer
     assert isinstance(buffer, MixedReplayBuffer) and buffer.online.n_steps == buffer.offline.n_steps == 3

@@ -11,7 +11,7 @@ import pytest
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_cql import BC, CQL
-from sb3_cql.common import SettingError
+from sb3_cql.data import DatasetError
 
 EXAMPLE = Path(__file__).parents[1] / "examples" / "own_data.py"
 
@@ -74,7 +74,7 @@ def test_a_buffer_of_unscaled_actions_is_refused_naming_the_first_index(algorith
     buffer = raw_pendulum_buffer(scale=1.0)
     first = int(np.argwhere(np.abs(buffer.actions[:, 0, 0]) > 1.0)[0, 0])
     value = float(buffer.actions[first, 0, 0])
-    with pytest.raises(SettingError) as error:
+    with pytest.raises(DatasetError) as error:
         algorithm("MlpPolicy", "Pendulum-v1", dataset=buffer)
     message = str(error.value)
     assert "\n" not in message
@@ -88,8 +88,8 @@ def test_a_buffer_of_scaled_actions_is_taken_and_a_nan_action_is_refused_before_
     assert CQL("MlpPolicy", "Pendulum-v1", dataset=buffer).replay_buffer.size() == 100
     buffer.actions[40, 0, 0] = 3.0
     buffer.actions[60, 0, 0] = np.nan
-    with pytest.raises(SettingError, match=r"actions hold nan at index 60: every value must be finite"):
+    with pytest.raises(DatasetError, match=r"actions hold nan at index 60: every value must be finite"):
         CQL("MlpPolicy", "Pendulum-v1", dataset=buffer)
     buffer.actions[60, 0, 0] = 0.0
-    with pytest.raises(SettingError, match=r"actions hold 3 at index 40 \(action\[0\]\), outside \[-1, 1\]"):
+    with pytest.raises(DatasetError, match=r"actions hold 3 at index 40 \(action\[0\]\), outside \[-1, 1\]"):
         CQL("MlpPolicy", "Pendulum-v1", dataset=buffer)

@@ -381,23 +381,3 @@ def test_ctrl_c_during_the_protocol_ends_it_at_once_on_one_line_keeping_the_unit
         f"interrupted: the units done are recorded in {results}; the same command continues with the others"
     ]
     assert [path.name for path in (results / "records" / "eval").iterdir()] == ["pid-seed117-Panda-v0.json"]
-
-
-def test_the_former_name_still_imports_and_runs_and_says_where_the_protocol_moved():
-    """``sb3_cql.benchmark`` (module and command) forwards to ``sb3_cql.protocol`` with a DeprecationWarning."""
-    code = (
-        "import warnings\n"
-        "with warnings.catch_warnings(record=True) as caught:\n"
-        "    warnings.simplefilter('always')\n"
-        "    import sb3_cql.benchmark as old\n"
-        "import sb3_cql.benchmark.runner, sb3_cql.protocol, sb3_cql.protocol.runner\n"
-        "assert [w.category for w in caught] == [DeprecationWarning], caught\n"
-        "assert 'sb3_cql.protocol' in str(caught[0].message)\n"
-        "assert sb3_cql.benchmark.runner is sb3_cql.protocol.runner\n"
-        "assert old.Protocol is sb3_cql.protocol.Protocol and old.BenchmarkError is sb3_cql.protocol.ProtocolError\n"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True)
-    old = subprocess.run([sys.executable, "-m", "sb3_cql.benchmark", "--help"], capture_output=True, text=True)
-    assert old.returncode == 0, old.stderr
-    assert "python -m sb3_cql.benchmark is now python -m sb3_cql.protocol" in old.stderr
-    assert old.stdout.startswith("usage: python -m sb3_cql.protocol")

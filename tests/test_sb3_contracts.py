@@ -16,7 +16,7 @@ from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.envs import FakeImageEnv, SimpleMultiObsEnv
 
-from sb3_cql import BC, CQL, IQL
+from sb3_cql import BC, CQL, IQL, CalQL
 from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer
 from sb3_cql.common.policies import NormalizedFlatten
 
@@ -158,13 +158,15 @@ def test_n_step_returns_train_save_and_load(algorithm, tmp_path):
 
 @pytest.mark.parametrize(
     "options, buffer_class",
-    [({}, ReplayBuffer), ({"n_steps": 3}, NStepReplayBuffer), ({"cql_calibrated": True}, ReturnToGoReplayBuffer),
-     ({"online_fraction": 0.5}, MixedReplayBuffer), ({"online_fraction": 0.5, "cql_calibrated": True, "n_steps": 2},
+    [({}, ReplayBuffer), ({"n_steps": 3}, NStepReplayBuffer), ({"calibrated": True}, ReturnToGoReplayBuffer),
+     ({"online_fraction": 0.5}, MixedReplayBuffer), ({"online_fraction": 0.5, "calibrated": True, "n_steps": 2},
      MixedReplayBuffer)],
 )  # fmt: skip
 def test_every_replay_buffer_we_make_saves_loads_and_copies_whole(options, buffer_class, tmp_path):
-    model = CQL("MlpPolicy", "Pendulum-v1", dataset=random_rollouts(gym.make("Pendulum-v1"), 300), batch_size=16,
-                policy_kwargs=TINY, seed=0, **options)  # fmt: skip
+    options = dict(options)
+    algorithm = CalQL if options.pop("calibrated", False) else CQL
+    model = algorithm("MlpPolicy", "Pendulum-v1", dataset=random_rollouts(gym.make("Pendulum-v1"), 300), batch_size=16,
+                      policy_kwargs=TINY, seed=0, **options)  # fmt: skip
     model.learn(20)
     assert type(model.replay_buffer) is buffer_class
     size = model.replay_buffer.size()
@@ -220,12 +222,20 @@ def test_a_minari_dataset_of_images_or_dict_observations_trains(algorithm, env_n
 
 
 def test_every_sac_keyword_is_cqls_with_sacs_default_or_refused_in_one_line():
-    sac, cql = inspect.signature(SAC.__init__).parameters, inspect.signature(CQL.__init__).parameters
-    assert set(sac) - set(cql) == set()
+    sac = inspect.signature(SAC.__init__).parameters
+    assert set(sac) - {"self"} <= CQL.known_keywords()
+
+    def default(algorithm: type, name: str) -> object:  # the default of the first class up the MRO that names it
+        for klass in algorithm.__mro__:
+            parameters = inspect.signature(klass.__dict__.get("__init__", object.__init__)).parameters
+            if name in parameters:
+                return parameters[name].default
+        raise AssertionError(name)
+
     kept_other_defaults = {"learning_rate", "buffer_size", "batch_size", "learning_starts", "actor_learning_rate"}
     for name, parameter in sac.items():
         if name not in {"self", "policy", "env"} | kept_other_defaults:
-            assert cql[name].default == parameter.default, name
+            assert default(CQL, name) == parameter.default, name
     buffer = random_rollouts(gym.make("Pendulum-v1"), 50)
     for keyword, value in (("use_sde", True), ("use_sde_at_warmup", True), ("optimize_memory_usage", True)):
         with pytest.raises(ValueError, match=f"^{keyword}=True is not supported: "):

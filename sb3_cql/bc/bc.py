@@ -13,8 +13,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import update_learning_rate
 
-from sb3_cql.common import OfflineSAC, SettingError, behaviour_cloning_loss
-from sb3_cql.common.offline import KeywordError, check_keywords
+from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
+from sb3_cql.common.settings import KeywordError, SettingError, check_keywords
 
 if TYPE_CHECKING:
     from minari import MinariDataset
@@ -131,12 +131,10 @@ class BC(OfflineSAC):
         """OfflineSAC's, with only the episodes ``min_return`` and ``top_fraction`` select."""
         if self.min_return is None and self.top_fraction is None:
             return super()._fill_from_dataset(dataset)
+        from sb3_cql.data.loading import resolve_dataset
         from sb3_cql.data.selection import select_episodes
 
-        if isinstance(dataset, str):
-            from sb3_cql.data.collection import ensure_dataset  # the tasks load only to collect a standard dataset
-
-            dataset = ensure_dataset(dataset)
+        dataset = resolve_dataset(dataset)
         try:
             selected = select_episodes(dataset, self.min_return, self.top_fraction)  # type: ignore[arg-type]
         except ValueError as error:

@@ -17,9 +17,11 @@ _MODULES = {
     "HeldActionNoise": "noise",
     "pink_action_noise": "noise",
     "OfflineSAC": "offline",
-    "SettingError": "offline",
-    "TrainingDivergedError": "offline",
     "behaviour_cloning_loss": "offline",
+    "OnlineFineTuning": "finetune",
+    "KeywordError": "settings",
+    "SettingError": "settings",
+    "TrainingDivergedError": "settings",
 }
 
 
@@ -32,8 +34,10 @@ def __getattr__(name: str):
 __all__ = [
     "ActionChunkReplayBuffer",
     "HeldActionNoise",
+    "KeywordError",
     "MixedReplayBuffer",
     "OfflineSAC",
+    "OnlineFineTuning",
     "ReturnToGoReplayBuffer",
     "ReturnToGoSamples",
     "SettingError",

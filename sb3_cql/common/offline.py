@@ -1,40 +1,47 @@
 """SAC's networks and replay buffer trained offline, from a dataset, and fine-tuned online with the dataset kept in the
-buffer: the base of :class:`~sb3_cql.CQL` and :class:`~sb3_cql.BC`."""
+buffer: the base of :class:`~sb3_cql.CQL`, :class:`~sb3_cql.IQL` and :class:`~sb3_cql.BC`."""
 
 from __future__ import annotations
 
 import inspect
 import io
-import numbers
+import json
 import os
 import time
 import warnings
+import zipfile
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
-import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.preprocessing import get_obs_shape
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
 from stable_baselines3.common.utils import FloatSchedule
 from stable_baselines3.common.vec_env import VecTransposeImage, unwrap_vec_wrapper
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
 from sb3_cql.common.atomic import save_atomically
-from sb3_cql.common.buffers import (
-    ActionChunkReplayBuffer,
-    MixedReplayBuffer,
-    ReturnToGoReplayBuffer,
-    transposed_images,
-    with_n_step_returns,
-)
+from sb3_cql.common.buffers import ActionChunkReplayBuffer, transposed_images, with_n_step_returns
+from sb3_cql.common.finetune import OnlineFineTuning
 from sb3_cql.common.policies import FROM_SAC, CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten, OfflinePolicy
+from sb3_cql.common.settings import (
+    SettingError,
+    check_count,
+    check_entropy,
+    check_finite,
+    check_fraction,
+    check_keywords,
+    check_net_arch,
+    check_non_negative,
+    check_rate,
+    is_count,
+    refuse_unsupported,
+)
 from sb3_cql.processes import interrupts_deferred
 
 if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard dataset's collection: neither on import.
@@ -43,175 +50,13 @@ if TYPE_CHECKING:  # Minari loads with the data, the tasks with a standard datas
 SelfOfflineSAC = TypeVar("SelfOfflineSAC", bound="OfflineSAC")
 
 
-class SettingError(ValueError):
-    """A keyword argument of an offline algorithm (given to its constructor or to ``load``) that it cannot train with,
-    or a replay buffer given as its ``dataset`` that it cannot train on; the message names the keyword and the value."""
-
-
-class KeywordError(SettingError, TypeError):
-    """A keyword argument an offline algorithm does not take: a misspelt one, or SAC's for what it does not train. A
-    ``TypeError`` too, as Python's own for an unexpected keyword."""
-
-
-def check_keywords(algorithm: str, given: Iterable[str], known: Iterable[str]) -> None:
-    """:class:`KeywordError` naming the keywords of ``given`` that are not ``known``, each with the known one it is
-    closest to."""
-    import difflib
-
-    known = sorted(known)
-    unknown = sorted(set(given) - set(known))
-    if unknown:
-        guesses = [f"{name} (did you mean {close[0]}?)" if (close := difflib.get_close_matches(name, known, 1)) else name
-                   for name in unknown]  # fmt: skip
-        raise KeywordError(f"{algorithm} got unexpected keyword arguments: {', '.join(guesses)}")
-
-
-def is_count(value: Any, minimum: int) -> bool:
-    """Whether ``value`` is an integer (not a bool) of at least ``minimum``."""
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
-
-
-def check_count(name: str, value: Any, minimum: int) -> None:
-    """:class:`SettingError` unless the setting ``name`` is an integer of at least ``minimum``."""
-    if not is_count(value, minimum):
-        raise SettingError(f"{name} must be an integer >= {minimum}, got {value!r}")
-
-
-def check_fraction(name: str, value: Any, zero: bool = False) -> None:
-    """:class:`SettingError` unless the setting ``name`` is a number in (0, 1] (in [0, 1] with ``zero``)."""
-    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    if not (number and (value >= 0 if zero else value > 0) and value <= 1):
-        raise SettingError(f"{name} must be in {'[' if zero else '('}0, 1], got {value!r}")
-
-
-def check_non_negative(names_values: Iterable[tuple[str, Any]], strictly: bool = False) -> None:
-    """:class:`SettingError` unless each setting is a number >= 0 (> 0 with ``strictly``)."""
-    for name, value in names_values:
-        number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        if not number or not (value > 0 if strictly else value >= 0):
-            raise SettingError(f"{name} must be a number {'>' if strictly else '>='} 0, got {value!r}")
-        if not np.isfinite(value):
-            raise SettingError(f"{name} must be a finite number, got {value!r}")
-
-
-def check_finite(names_values: Iterable[tuple[str, Any]]) -> None:
-    """:class:`SettingError` unless each setting is a finite number."""
-    for name, value in names_values:
-        if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and np.isfinite(value)):
-            raise SettingError(f"{name} must be a finite number, got {value!r}")
-
-
-def check_rate(name: str, value: Any) -> None:
-    """:class:`SettingError` unless the learning rate ``name`` is a finite number >= 0, or a schedule (a callable of the
-    progress remaining, as SB3's) whose first value is. 0 is SB3's frozen network, which the zoo's ``enjoy`` and
-    ``record_video`` load models with."""
-    if callable(value) and not isinstance(value, numbers.Real):
-        try:
-            first = value(1.0)
-        except Exception as error:
-            raise SettingError(f"{name}: the schedule {value!r} fails at progress 1.0: {error}") from None
-        if not (isinstance(first, numbers.Real) and np.isfinite(first) and first >= 0):
-            raise SettingError(f"{name} must be a number >= 0, got a schedule starting at {first!r}")
-        return
-    check_non_negative([(name, value)])
-
-
-def check_net_arch(net_arch: Any) -> None:
-    """:class:`SettingError` unless ``net_arch`` (a policy keyword) is SB3's: ``None``, a list of layer sizes (integers
-    >= 1), or a dict of such lists (``pi``, ``qf``)."""
-    layers = net_arch.values() if isinstance(net_arch, dict) else [net_arch]
-    for sizes in layers:
-        if sizes is not None and not (isinstance(sizes, (list, tuple)) and all(is_count(size, 1) for size in sizes)):
-            raise SettingError(f"net_arch must be a list of layer sizes (integers >= 1) or a dict of them, got {net_arch!r}")
-
-
-def check_entropy(ent_coef: Any, target_entropy: Any) -> None:
-    """:class:`SettingError` unless SAC's ``ent_coef`` is a finite number >= 0, ``\"auto\"`` or ``\"auto_X\"`` (X > 0, its
-    initial value), and ``target_entropy`` is ``\"auto\"`` or a finite number."""
-    if isinstance(ent_coef, str):
-        initial = ent_coef.partition("_")[2] if ent_coef.startswith("auto_") else "1" if ent_coef == "auto" else ""
-        try:
-            valid = np.isfinite(float(initial)) and float(initial) > 0
-        except ValueError:
-            valid = False
-        if not valid:
-            raise SettingError(f"ent_coef must be a finite number >= 0, 'auto' or 'auto_X' with X > 0, got {ent_coef!r}")
-    else:
-        check_non_negative([("ent_coef", ent_coef)])
-    if not (isinstance(target_entropy, str) and target_entropy == "auto"):
-        check_finite([("target_entropy", target_entropy)])
-
-
-def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None:
-    """The first NaN or infinity among the filled transitions of ``buffer``: ``(field, index, env, value)``, the
-    field (``observations['key']`` for a dict of them), the buffer index and env of its transition; ``None`` if all
-    are finite."""
-    size = buffer.size()
-    fields = []
-    for name in ("observations", "next_observations"):
-        array = getattr(buffer, name, None)
-        items = array.items() if isinstance(array, dict) else [(None, array)]
-        fields += [(name if key is None else f"{name}[{key!r}]", values) for key, values in items]
-    fields += [("actions", buffer.actions), ("rewards", buffer.rewards)]
-    for name, values in fields:
-        if values is None or not np.issubdtype(values.dtype, np.floating):
-            continue
-        filled = values[:size].reshape(size, buffer.n_envs, -1)
-        bad = np.argwhere(~np.isfinite(filled))
-        if len(bad):
-            index, env, element = bad[0]
-            return name, int(index), int(env), float(filled[index, env, element])
-    return None
-
-
-#: How far a buffer's scaled action may lie outside [-1, 1] (float32 rounding of data scaled elsewhere).
-SCALED_ACTION_TOLERANCE = 1e-5
-
-
-def first_action_outside(buffer: ReplayBuffer) -> tuple[int, int, int, float] | None:
-    """The first action among the filled transitions of ``buffer`` outside [-1, 1], the scaled action space SB3's
-    buffers hold (``policy.scale_action``): ``(index, env, component, value)``; ``None`` if all lie inside (NaN
-    compares as inside: :func:`first_non_finite` finds it)."""
-    size = buffer.size()
-    filled = buffer.actions[:size].reshape(size, buffer.n_envs, -1)
-    bad = np.argwhere(np.abs(filled) > 1.0 + SCALED_ACTION_TOLERANCE)
-    if not len(bad):
-        return None
-    index, env, component = bad[0]
-    return int(index), int(env), int(component), float(filled[index, env, component])
-
-
-class TrainingDivergedError(FloatingPointError, ValueError):
-    """A training loss became NaN or infinite. A ``ValueError`` too, so that RL-Zoo3's tuning prunes the trial
-    (it prunes on ``ValueError``) instead of ending the whole study."""
-
-
-def finite_loss_value(loss: th.Tensor, description: str, step: int, hint: str) -> float:
-    """``loss`` as a number; :class:`TrainingDivergedError` naming ``description`` (``"CQL's critic loss"``), the
-    gradient ``step`` and a ``hint`` of what to try if it is NaN or infinite."""
-    value = loss.item()
-    if not np.isfinite(value):
-        raise TrainingDivergedError(f"{description} is {value} at gradient step {step}: training diverged ({hint})")
-    return value
-
-
-def shaped_rewards(replay_data: Any, reward_scale: float, reward_bias: float, gamma: float) -> th.Tensor:
-    """The rewards a critic learns from, ``reward_scale * reward + reward_bias`` at every step; for an n-step sample
-    (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the rewards:
-    ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
-    if replay_data.discounts is None:
-        return reward_scale * replay_data.rewards + reward_bias
-    steps_discount = (1.0 - replay_data.discounts) / (1.0 - gamma)
-    return reward_scale * replay_data.rewards + reward_bias * steps_discount
-
-
 def behaviour_cloning_loss(mean_actions: th.Tensor, actions: th.Tensor) -> th.Tensor:
     """Mean squared error between a SAC actor's deterministic actions, ``tanh`` of its ``mean_actions`` (from
     ``Actor.get_action_dist_params``), and the data's ``actions`` (both in [-1, 1])."""
     return F.mse_loss(th.tanh(mean_actions), actions)
 
 
-class OfflineSAC(SAC):
+class OfflineSAC(OnlineFineTuning):
     """SAC's policies (actor, twin critics) and ``ReplayBuffer``, with the buffer filled from a dataset and
     :meth:`learn` making one gradient step per timestep without ever stepping the env (it gives the spaces;
     callbacks such as ``EvalCallback`` use their own envs). Subclasses write :meth:`train`.
@@ -269,6 +114,9 @@ class OfflineSAC(SAC):
     :param best_of_n_scale: the spread of best-of-N's candidates: their standard deviation is the actor's times
         ``best_of_n_scale`` (``0.1``: candidates near the actor's mean). Saved with the model, changed by
         ``load(path, best_of_n_scale=S)``. ``1`` (the default): samples of the actor's own distribution.
+    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (:meth:`critic_rewards`; the
+        buffer keeps the data's rewards).
+    :param reward_bias: see ``reward_scale``.
     :param kwargs: SAC's other arguments (``batch_size``, ``tau``, ``gamma``, ``action_noise``, ``seed``, ...).
     """
 
@@ -298,15 +146,18 @@ class OfflineSAC(SAC):
         action_chunk: int = 1,
         best_of_n: int = 1,
         best_of_n_scale: float = 1.0,
+        reward_scale: float = 1.0,
+        reward_bias: float = 0.0,
         policy_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
-        _refuse_unsupported(kwargs)
+        refuse_unsupported(kwargs)
         check_keywords(type(self).__name__, kwargs, inspect.signature(SAC.__init__).parameters)
         check_count("action_chunk", action_chunk, 1)
         check_count("best_of_n", best_of_n, 1)
         check_non_negative([("best_of_n_scale", best_of_n_scale)], strictly=True)
         self.best_of_n, self.best_of_n_scale = best_of_n, best_of_n_scale
+        self.reward_scale, self.reward_bias = reward_scale, reward_bias
         if action_chunk > 1 and kwargs.get("n_steps", 1) not in (1, action_chunk):
             raise SettingError(f"n_steps={kwargs['n_steps']} with action_chunk={action_chunk}: a chunk's backup spans "
                                f"its {action_chunk} steps (n_steps is the chunk's length)")  # fmt: skip
@@ -348,13 +199,24 @@ class OfflineSAC(SAC):
         )
 
     @classmethod
+    def known_keywords(cls) -> set[str]:
+        """The keywords the class takes: its own, and those it passes on to the classes above it (ours, then SAC's)."""
+        known: set[str] = set()
+        for klass in cls.__mro__:
+            init = klass.__dict__.get("__init__")
+            if init is None or klass is object:
+                continue
+            parameters = inspect.signature(init).parameters
+            known.update(name for name, parameter in parameters.items() if parameter.kind is not parameter.VAR_KEYWORD)
+            if not any(parameter.kind is parameter.VAR_KEYWORD for parameter in parameters.values()):
+                break  # it passes nothing on
+        return known - {"self"}
+
+    @classmethod
     def refuse_unknown_keywords(cls, keywords: Iterable[str]) -> None:
         """:class:`KeywordError` naming those of ``keywords`` that the class does not take (the closest one with each):
-        for callers that hold keywords before making the model (the zoo's hyperparameters)."""
-        parameters = inspect.signature(cls.__init__).parameters
-        takes_more = any(parameter.kind is inspect.Parameter.VAR_KEYWORD for parameter in parameters.values())
-        sac = inspect.signature(SAC.__init__).parameters if takes_more else {}
-        check_keywords(cls.__name__, keywords, [*parameters, *sac])
+        for callers that hold keywords before making the model (the zoo's hyperparameters, ``load``'s)."""
+        check_keywords(cls.__name__, keywords, cls.known_keywords())
 
     def _check_settings(self) -> None:
         """:class:`SettingError` for a setting outside what training can use, where SB3 would train on without a word
@@ -378,13 +240,16 @@ class OfflineSAC(SAC):
         check_count("buffer_size", self.buffer_size, 1)
         check_count("online_buffer_size", self.online_buffer_size, 1)
         check_count("action_chunk", self.action_chunk, 1)
+        check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
+        if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
+            raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
         check_count("best_of_n", getattr(self, "best_of_n", 1), 1)
         check_non_negative([("best_of_n_scale", getattr(self, "best_of_n_scale", 1.0))], strictly=True)
         fraction = self.online_fraction
-        if fraction is not None and not (isinstance(fraction, numbers.Real) and 0.0 <= fraction <= 1.0):
+        if fraction is not None and not (isinstance(fraction, (int, float)) and 0.0 <= fraction <= 1.0):
             raise SettingError(f"online_fraction must be None (offline training) or in [0, 1], got {fraction!r}")
 
-    def _setup_model(self) -> None:
+    def _setup_offline_model(self) -> None:
         self._check_settings()
         if isinstance(self.observation_space, spaces.Dict) and self.n_steps > 1:
             raise SettingError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
@@ -423,53 +288,20 @@ class OfflineSAC(SAC):
             self.dataset = self.dataset if isinstance(self.dataset, str) else None  # never pickle data into a model
 
     def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
-        """The replay buffer from ``dataset``: a given buffer as it is (viewed with SB3's n-step returns for
-        ``n_steps`` > 1), a Minari dataset (or id, collected first if it is a missing standard one) loaded into a buffer
-        of ``replay_buffer_class`` (SB3's choice: ``NStepReplayBuffer`` for ``n_steps`` > 1); then the observation
-        statistics of ``normalize_observations``."""
-        data_space = self._data_observation_space()
-        if isinstance(dataset, ReplayBuffer):
-            fits = dataset.obs_shape in (get_obs_shape(self.observation_space), get_obs_shape(data_space))
-            if not fits or dataset.action_dim != self.action_space.shape[0]:
-                raise SettingError(
-                    f"dataset: the replay buffer's observations {dataset.obs_shape} and actions ({dataset.action_dim},) "
-                    f"do not match the env's {get_obs_shape(data_space)} and {self.action_space.shape}"
-                )
-            non_finite = first_non_finite(dataset)
-            if non_finite is not None:  # it would train on as a NaN loss, or a distribution torch refuses
-                field, index, env, value = non_finite
-                at = f"index {index}" + (f", env {env}" if dataset.n_envs > 1 else "")
-                raise SettingError(f"dataset: the replay buffer's {field} hold {value} at {at}: every value must be "
-                                   "finite")  # fmt: skip
-            outside = first_action_outside(dataset)
-            if outside is not None:  # SB3 stores actions scaled to the policy's [-1, 1]; a tanh policy never reaches them
-                index, env, component, value = outside
-                at = f"index {index}" + (f", env {env}" if dataset.n_envs > 1 else "")
-                raise SettingError(f"dataset: the replay buffer's actions hold {value:g} at {at} (action[{component}]), "
-                                   "outside [-1, 1]: store actions scaled as SB3 does (policy.scale_action)")  # fmt: skip
-            if dataset.obs_shape != get_obs_shape(self.observation_space):
-                dataset = transposed_images(dataset, self.observation_space)
+        """The replay buffer from ``dataset`` (:func:`sb3_cql.data.load_replay_buffer`: a buffer of the user's checked,
+        then viewed with SB3's n-step returns for ``n_steps`` > 1; a Minari dataset or id loaded into a buffer of
+        ``replay_buffer_class``, SB3's choice); then the observation statistics of ``normalize_observations``."""
+        from sb3_cql.data.loading import load_replay_buffer  # (Minari loads with the data, not with the algorithms)
+
+        buffer = load_replay_buffer(dataset, self.observation_space, self.action_space, self._data_observation_space(),
+                                    self.device, self.replay_buffer_class, self.replay_buffer_kwargs)  # fmt: skip
+        if buffer is dataset:  # a buffer of the user's, read through views
+            if buffer.obs_shape != get_obs_shape(self.observation_space):
+                buffer = transposed_images(buffer, self.observation_space)
             chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
-            self.replay_buffer = with_n_step_returns(dataset, self.n_steps, self.gamma, chunks)
-        else:
-            from sb3_cql.data.replay import fill_replay_buffer
-
-            if isinstance(dataset, str):
-                from sb3_cql.data.collection import ensure_dataset  # the tasks load only to collect a standard dataset
-
-                dataset = ensure_dataset(dataset)
-            self.replay_buffer = fill_replay_buffer(
-                dataset,
-                data_space,
-                self.action_space,
-                device=self.device,
-                replay_buffer_class=self.replay_buffer_class,
-                replay_buffer_kwargs=self.replay_buffer_kwargs,
-                buffer_observation_space=self.observation_space,
-            )
-        size = self.replay_buffer.size()
-        if size == 0:
-            raise SettingError("the dataset holds no transitions")
+            buffer = with_n_step_returns(buffer, self.n_steps, self.gamma, chunks)
+        self.replay_buffer = buffer
+        size = buffer.size()
         if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
             observations = self.replay_buffer.observations[:size].reshape(size, -1)
             mean, std = observations.mean(axis=0), observations.std(axis=0)
@@ -509,12 +341,7 @@ class OfflineSAC(SAC):
         retain_freed_memory()
         tb_log_name = tb_log_name or type(self).__name__
         if self.online_fraction is not None:
-            self._prepare_online_buffer(reset_num_timesteps)
-            # Chunks run open loop from the first step: SB3's learn starts (or continues) with a new one (and resets
-            # the action noise: a HeldActionNoise draws afresh with the chunk).
-            self._rollout_chunks, self._rollout_episode_starts = None, np.ones(self.n_envs, dtype=bool)
-            log_interval = 4 if log_interval is None else log_interval
-            return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
+            return self.learn_online(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
         log_interval = 1000 if log_interval is None else log_interval
         self._ensure_offline_data()
         total_timesteps, callback = self._setup_learn(
@@ -533,35 +360,6 @@ class OfflineSAC(SAC):
                 self._dump_offline_logs()
         callback.on_training_end()
         return self
-
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """SAC's exploration (a sample of the policy, plus ``action_noise`` if any), or with ``deterministic_rollouts``
-        TD3's: the deterministic action plus ``action_noise``, clipped to the action space (after ``learning_starts``;
-        the random warm-up stays SB3's). With action chunks, each chunk (a sample, or the deterministic chunk) runs open
-        loop through the policy's ``state``, a new one when it is used up or an episode ends."""
-        chunked = self.action_chunk > 1
-        if (not self.deterministic_rollouts and not chunked) or self.num_timesteps < learning_starts:
-            return super()._sample_action(learning_starts, action_noise, n_envs)
-        assert self._last_obs is not None
-        if chunked:
-            action, self._rollout_chunks = self.policy.predict(
-                self._last_obs, self._rollout_chunks, self._rollout_episode_starts, deterministic=self.deterministic_rollouts
-            )
-            self._rollout_episode_starts = np.zeros(n_envs, dtype=bool)
-        else:
-            action, _ = self.predict(self._last_obs, deterministic=True)
-        scaled_action = self.policy.scale_action(action)
-        if action_noise is not None:
-            scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
-        return self.policy.unscale_action(scaled_action), scaled_action
-
-    def _store_transition(self, replay_buffer: ReplayBuffer, buffer_action: np.ndarray, new_obs: Any,
-                          reward: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> None:  # fmt: skip
-        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
-        if self.action_chunk > 1:  # an episode that ended starts the next with a new chunk
-            self._rollout_episode_starts = self._rollout_episode_starts | np.asarray(dones, dtype=bool)
 
     def load_offline_data(self) -> ReplayBuffer:
         """The model's offline data, in its replay buffer, as :meth:`learn` has them before training: a loaded model
@@ -588,44 +386,14 @@ class OfflineSAC(SAC):
                 f"training needs batch_size={self.batch_size} offline transitions or more, the buffer has {size}{hint}"
             )
 
-    def _prepare_online_buffer(self, reset_num_timesteps: bool) -> None:
-        """Make the replay buffer a :class:`MixedReplayBuffer`: the offline data (the buffer's, or reloaded from the
-        dataset id, also under a loaded buffer of online transitions) and an online part of ``online_buffer_size``."""
-        mixed = self.replay_buffer if isinstance(self.replay_buffer, MixedReplayBuffer) else None
-        if mixed is None:
-            self._ensure_offline_data()
-            offline = self.replay_buffer
-            assert offline is not None
-            mixed = MixedReplayBuffer(offline, self._empty_buffer_like(offline), self.online_fraction)
-        elif mixed.offline is None:  # a loaded buffer of online transitions: the offline data come from the dataset
-            self.replay_buffer = None
-            try:
-                self._ensure_offline_data()
-                offline = self.replay_buffer
-            finally:
-                self.replay_buffer = mixed  # kept, also when the data cannot be loaded
-            mixed.set_offline(offline)
-        mixed.online_fraction = self.online_fraction  # a fraction given to load() applies to a loaded buffer too
-        self.replay_buffer = mixed
-        if reset_num_timesteps or self._last_obs is None:  # SB3's learn resets the env: a new episode starts
-            mixed.start_new_episodes()
-
-    def _empty_buffer_like(self, buffer: ReplayBuffer) -> ReplayBuffer:
-        """An empty buffer of ``online_buffer_size`` of ``buffer``'s class and settings, for this model's env."""
-        kwargs: dict[str, Any] = {}
-        if isinstance(buffer, NStepReplayBuffer):
-            kwargs = {"gamma": buffer.gamma, "n_steps": buffer.n_steps}
-        if isinstance(buffer, ReturnToGoReplayBuffer):
-            kwargs.update(reward_scale=buffer.reward_scale, reward_bias=buffer.reward_bias)
-        return type(buffer)(
-            self.online_buffer_size,
-            self.observation_space,
-            self.action_space,
-            device=self.device,
-            n_envs=self.n_envs,
-            handle_timeout_termination=True,
-            **kwargs,
-        )
+    def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
+        """The rewards the critics learn from, ``reward_scale * reward + reward_bias`` at every step; for an n-step
+        sample (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the
+        rewards: ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
+        if replay_data.discounts is None:
+            return self.reward_scale * replay_data.rewards + self.reward_bias
+        steps = (1.0 - replay_data.discounts) / (1.0 - self.gamma)
+        return self.reward_scale * replay_data.rewards + self.reward_bias * steps
 
     def _dump_offline_logs(self) -> None:
         elapsed = max(time.time_ns() - self.start_time, 1) / 1e9
@@ -656,41 +424,48 @@ class OfflineSAC(SAC):
         model's :class:`MixedReplayBuffer` saves its online transitions only."""
         save_atomically(super().save_replay_buffer, path, "pkl")
 
-    def load_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
-        """SB3's. A fine-tuning buffer comes back with its online transitions only: the offline data this model holds
-        stay under it (else :meth:`learn` reloads them from the dataset id)."""
-        offline = self.replay_buffer.offline if isinstance(self.replay_buffer, MixedReplayBuffer) else self.replay_buffer
-        super().load_replay_buffer(path, truncate_last_traj)
-        loaded = self.replay_buffer
-        keeps = offline is not None and offline.size() >= self.batch_size
-        if isinstance(loaded, MixedReplayBuffer) and loaded.offline is None and keeps and type(offline) is type(loaded.online):
-            loaded.set_offline(offline)
-
     @classmethod
     def load(cls, path, env=None, device="auto", custom_objects=None, print_system_info=False, force_reset=True, **kwargs):
         """SB3's ``load``, without the training data: the replay buffer holds one transition (unless ``buffer_size``
         is given), so a loaded model predicts without allocating the training buffer. :meth:`learn` refills it from
         ``model.dataset`` when that names a dataset (or set ``model.replay_buffer`` by hand first)."""
+        cls.refuse_unknown_keywords(kwargs)  # SB3 would set any keyword as an attribute, and train on without it
+        saved = saved_algorithm(path)
+        if saved is not None and saved not in [klass.__name__ for klass in cls.__mro__]:
+            raise SettingError(f"{path} holds a {saved} model: load it with {saved}.load (in the zoo, --algo "
+                               f"{saved.lower()})")  # fmt: skip
         kwargs.setdefault("buffer_size", 1)
         kwargs["_fill_on_setup"] = False
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+
+    def _setup_model(self) -> None:
+        self.algorithm = type(self).__name__  # saved with the model: load() reads it before the parameters
+        self._setup_offline_model()
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "actor_lr_schedule", "_fill_on_setup"]
 
 
-#: SAC's keywords that an offline algorithm refuses, with why: ``(keyword, the value it accepts, the reason)``.
-UNSUPPORTED_SAC_KEYWORDS = (
-    ("use_sde", False, "gSDE explores by sampling noise matrices for rollouts; the conservative term and the warm start "
-     "draw the policy's actions without it"),
-    ("use_sde_at_warmup", False, "gSDE is not supported (use_sde)"),
-    ("optimize_memory_usage", False, "the offline data keep each transition's next observation: an episode's last "
-     "observation is not the next episode's first"),
-)  # fmt: skip
-
-
-def _refuse_unsupported(kwargs: dict[str, Any]) -> None:
-    """One line for a SAC keyword set to a value an offline algorithm cannot honour."""
-    for keyword, accepted, reason in UNSUPPORTED_SAC_KEYWORDS:
-        if kwargs.get(keyword, accepted) != accepted:
-            raise SettingError(f"{keyword}={kwargs[keyword]!r} is not supported: {reason}")
+def saved_algorithm(path: Any) -> str | None:
+    """The class that saved the model at ``path`` (a zip of SB3's, or a file object of one), as its ``algorithm``
+    says, or for a model saved before that was recorded, as its settings tell; ``None`` where nothing tells (a path
+    SB3's ``load`` will report on itself)."""
+    try:
+        if isinstance(path, (str, os.PathLike)):
+            suffixed = path if os.path.exists(path) else f"{path}.zip"
+            with zipfile.ZipFile(suffixed) as archive:
+                data = json.loads(archive.read("data"))
+        else:
+            start = path.tell()
+            try:
+                with zipfile.ZipFile(path) as archive:
+                    data = json.loads(archive.read("data"))
+            finally:
+                path.seek(start)
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, AttributeError):
+        return None
+    if "algorithm" in data:
+        return str(data["algorithm"])
+    if data.get("cql_calibrated"):
+        return "CalQL"
+    return "IQL" if "expectile" in data else "CQL" if "cql_alpha" in data else None

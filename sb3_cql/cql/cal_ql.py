@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any
 
 import torch as th
+from gymnasium import spaces
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
+from sb3_cql.common.buffers import ReturnToGoReplayBuffer
+from sb3_cql.common.settings import SettingError
 from sb3_cql.cql.cql import CQL
 
 
@@ -18,17 +21,32 @@ class CalQL(CQL):
 
     The replay buffer is a :class:`~sb3_cql.common.ReturnToGoReplayBuffer` (returns-to-go computed when the data are
     loaded, and for online episodes when they end; ``-inf``, no bound, until then). ``train/cql_bound_rate`` logs the
-    fraction of the first critic's policy-action values the bound lifted.
-
-    Its keywords are :class:`~sb3_cql.CQL`'s, ``cql_calibrated`` always ``True``; ``CQL(..., cql_calibrated=True)``
-    and ``CQL.load`` of a model saved with it make a ``CalQL``.
+    fraction of the first critic's policy-action values the bound lifted. Its keywords are :class:`~sb3_cql.CQL`'s;
+    in the zoo it is ``--algo calql``.
     """
 
-    needs_returns_to_go: ClassVar[bool] = True
+    def _check_settings(self) -> None:
+        super()._check_settings()
+        if self.action_chunk > 1:
+            raise SettingError("CalQL does not support action_chunk > 1 yet (returns-to-go of chunk samples)")
 
     def _setup_model(self) -> None:
-        self.cql_calibrated = True  # saved with the model: CQL.load makes it a CalQL again
+        if isinstance(self.observation_space, spaces.Dict):
+            raise SettingError("CalQL does not support Dict observations (returns-to-go need a Box buffer)")
         super()._setup_model()
+        if not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):  # a loaded model's one-transition buffer
+            self._add_returns_to_go()
+
+    def _fill_from_dataset(self, dataset: Any) -> None:
+        super()._fill_from_dataset(dataset)
+        self._add_returns_to_go()
+
+    def _add_returns_to_go(self) -> None:
+        """The replay buffer as a :class:`ReturnToGoReplayBuffer` (its arrays shared) under this model's rewards."""
+        assert self.replay_buffer is not None
+        self.replay_buffer = ReturnToGoReplayBuffer.from_replay_buffer(
+            self.replay_buffer, self.gamma, self.reward_scale, self.reward_bias
+        )
 
     def policy_values_in_logsumexp(
         self, q_policy: th.Tensor, replay_data: ReplayBufferSamples, logs: dict[str, list[float]]

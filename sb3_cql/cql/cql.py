@@ -8,24 +8,14 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch as th
-from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, Schedule
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.common import OfflineSAC, ReturnToGoReplayBuffer, behaviour_cloning_loss
-from sb3_cql.common.offline import (
-    SettingError,
-    TrainingDivergedError,  # noqa: F401 (importable from here, where it was first defined)
-    check_count,
-    check_finite,
-    check_non_negative,
-    finite_loss_value,
-    shaped_rewards,
-)
+from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
+from sb3_cql.common.settings import check_count, check_finite, check_non_negative, finite_loss_value
 from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLActor, CQLCritic, MlpPolicy, MultiInputPolicy
 
 if TYPE_CHECKING:
@@ -49,40 +39,19 @@ class CQL(OfflineSAC):
     ``alpha' * cql_alpha * (gap - cql_target_action_gap)`` with the multiplier ``alpha'`` learned by dual gradient
     ascent (tinkoff-ai/CORL's form).
 
-    Training is offline (:class:`~sb3_cql.common.OfflineSAC`): the replay buffer is filled from ``dataset`` and
-    :meth:`learn` makes one gradient step per timestep, stepping the env never (it only gives the spaces, and
-    callbacks such as ``EvalCallback`` use their own envs). Observations are z-scored with the dataset's
-    statistics (``normalize_observations``) inside the policy, so ``predict`` applies the same normalisation after
-    ``save``/``load``. With ``online_fraction``, :meth:`learn` fine-tunes online, the dataset kept in the buffer
-    (the same loss; a calibrated model, :class:`~sb3_cql.cql.CalQL`, gives new episodes their returns-to-go when
-    they end).
-
-    ``n_steps`` (SB3's n-step returns): the TD target bootstraps after up to ``n_steps`` steps of the data's episode
-    with the samples' ``discounts``, as SAC's (the critics' rewards summed over those steps, :meth:`critic_rewards`).
-
-    Defaults are the reference implementation's (tinkoff-ai/CORL's ``cql.py``: batch 256, critic learning rate 3e-4,
-    actor learning rate 3e-5, tau 5e-3, ``cql_alpha`` 10, 10 sampled actions, a learned entropy coefficient, no
-    entropy in the backup, no warm start); the thesis's grasping settings are in ``hyperparams/cql.yml``.
-    A setting training cannot use (``gamma`` or ``tau`` outside (0, 1], a negative ``bc_steps``, ``batch_size`` 0, ...,
-    also given to :meth:`load`) is a :class:`~sb3_cql.common.SettingError` naming it and its
-    value; so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an action outside [-1, 1]
-    (the scaled action space SB3's buffers hold). ``save`` and ``save_replay_buffer`` leave a file whole or none.
+    Datasets, ``n_steps``, action chunks, the observation normaliser, online fine-tuning (``online_fraction``), the
+    checks of every setting and atomic saves are the offline base's (:class:`~sb3_cql.common.OfflineSAC`). Defaults are
+    the reference implementation's (tinkoff-ai/CORL's ``cql.py``: batch 256, critic learning rate 3e-4, actor learning
+    rate 3e-5, tau 5e-3, ``cql_alpha`` 10, 10 sampled actions, a learned entropy coefficient, no entropy in the backup,
+    no warm start); the thesis's grasping settings are in ``hyperparams/cql.yml``.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with CQL's
         actor and critic passes, :mod:`sb3_cql.cql.policies`).
     :param env: the environment (for its spaces, and the default evaluation env).
-    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
-        ``buffer_size`` (filled by hand, e.g. with :func:`sb3_cql.data.fill_replay_buffer`). A missing standard
-        id (``sb3cql/Panda-v0/pid-v0``, ...) is collected first (:func:`sb3_cql.data.ensure_dataset`).
-    :param learning_rate: learning rate of the critics, the entropy coefficient and the Lagrange multiplier.
-    :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
-    :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
-    :param batch_size: minibatch size of each gradient step.
-    :param tau: Polyak coefficient of the target critics.
-    :param gamma: discount factor.
-    :param ent_coef: SAC's entropy coefficient (``"auto"`` to learn it).
-    :param target_entropy: SAC's target entropy when learning ``ent_coef``.
-    :param target_update_interval: gradient steps between target updates.
+    :param dataset: a Minari dataset, its id (a missing standard one is collected first), or a filled
+        ``ReplayBuffer``; ``None`` for an empty buffer of ``buffer_size``.
+    :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate`` (the critics', the entropy
+        coefficient's and the Lagrange multiplier's).
     :param cql_alpha: weight of each critic's conservative gap against its full TD loss (its mean squared error), as
         tinkoff-ai/CORL's ``cql_alpha`` and the CQL paper's code weigh it (d3rlpy's ``conservative_weight`` multiplies
         the critics' mean gap, so its ``w`` is ``w / 2`` here with two critics). The default, 10, is CORL's, and trains
@@ -95,14 +64,6 @@ class CQL(OfflineSAC):
         near it: the term becomes ``alpha' * cql_alpha * (gap - cql_target_action_gap)`` per critic, as CORL's.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
-    :param cql_calibrated: calibrated CQL, Cal-QL (Nakamoto et al. 2023, https://arxiv.org/abs/2303.05479): the
-        model is a :class:`~sb3_cql.cql.CalQL` (from its setup on, also when loaded from a model saved with it), whose
-        conservative term replaces Q at the policy's actions (at ``s`` and ``s'``) by ``max(Q, G(s))``, with ``G(s)``
-        the discounted return-to-go of the data's episode from ``s`` under the critics' rewards (``reward_scale``,
-        ``reward_bias``), so the term stops pushing the policy's values below what the data earned. The replay buffer
-        becomes a :class:`~sb3_cql.common.ReturnToGoReplayBuffer` (returns-to-go computed when the data are loaded,
-        and for online episodes when they end). ``train/cql_bound_rate`` logs the fraction of policy-action values
-        the bound lifted.
     :param bc_steps: gradient steps at the start of training (counted across ``learn`` calls and ``save``/``load``)
         whose actor loss is behaviour cloning in place of the Q-value (the deterministic action fitted to the data
         actions by least squares), next to the entropy term, which sets the spread alone (through the log-std head);
@@ -114,54 +75,16 @@ class CQL(OfflineSAC):
         term too, :meth:`anchor_actor_loss`) divided by the batch's mean ``|Q|`` (detached) plus ``actor_bc_weight``
         times the warm start's behaviour-cloning loss, as in TD3+BC (Fujimoto & Gu 2021,
         https://arxiv.org/abs/2106.06860), whose ``alpha`` is ``1 / actor_bc_weight`` (its default 2.5 is 0.4 here).
-        ``0`` (the default) is CQL's actor loss as defined. Measured on a training seed (the documentation's *What we
-        learned* page): without it, following Q broke a working clone within 1,000 steps; with a weight of 4 the clone
-        held through 21,000 Q steps, neither better nor worse than the clone on the three tasks; with 1 it slipped.
-    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's
-        rewards). With a sparse 0/1 reward, a negative bias (the thesis's code: scale 4, bias -2) gives every step
-        that does not reach the goal a cost, and puts the Q-values on the scale of ``cql_target_action_gap``.
-    :param reward_bias: see ``reward_scale``.
-    :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
-        ``None`` (the default) does for an ``MlpPolicy`` on Box observations (see
-        :class:`~sb3_cql.common.OfflineSAC`), ``True`` with another policy is refused.
-    :param online_fraction: ``None`` (the default) trains offline. A fraction fine-tunes online: :meth:`learn` steps
-        the env as SAC's does, timesteps are env steps, the offline data stay in the replay buffer (a
-        :class:`~sb3_cql.common.MixedReplayBuffer`) and every batch draws this fraction of its samples from the online
-        transitions (RLPD's symmetric sampling: 0.5). Given to :meth:`load`, it fine-tunes a model trained offline.
-    :param online_buffer_size: capacity of the online transitions when fine-tuning.
-    :param learning_starts: env steps of uniform random actions before training starts, when fine-tuning (SAC's;
-        0 keeps the trained policy acting from the first step).
-    :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
-    :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's; ``-1``: as many as env steps).
-    :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``, as SAC's and TD3's).
-    :param action_chunk: actions per decision (Q-chunking, :class:`~sb3_cql.common.OfflineSAC`): the actor and the
-        critics work on chunks of ``action_chunk`` actions, the TD target spans the chunk (``n_steps = action_chunk``),
-        and the conservative term samples whole chunks; each chunk runs open loop when the model acts. ``1``: one action
-        a state.
-    :param best_of_n: act by ranking: draw ``best_of_n`` candidate actions (or chunks) from the actor at each decision
-        and take the one the critics value most (:class:`~sb3_cql.common.policies.OfflinePolicy`); saved with the
-        model, changed by ``load(path, best_of_n=N)``. ``1`` (the default): the actor's own action.
-    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's (``1``, the default: the
-        actor's own distribution); saved with the model.
-    :param replay_buffer_class: the class of the replay buffer the data load into (SAC's; by default SB3's choice,
-        ``NStepReplayBuffer`` for ``n_steps`` > 1).
-    :param replay_buffer_kwargs: keywords of that class (SAC's).
-    :param optimize_memory_usage: SAC's; only ``False`` (the offline data keep each transition's next observation).
-    :param n_steps: SB3's n-step returns: the TD target sums up to ``n_steps`` rewards within an episode and
-        bootstraps with ``gamma`` to the power of the steps summed (a termination ends the sum and the bootstrap, a
-        truncation ends the sum and bootstraps). ``1`` (the default): one-step backups.
-    :param deterministic_rollouts: when fine-tuning, act with the deterministic action plus ``action_noise`` (TD3's
-        exploration) instead of a sample of the policy (SAC's).
-    :param stats_window_size: episodes averaged in the rollout logs when fine-tuning (SAC's).
-    :param tensorboard_log: TensorBoard log folder.
-    :param policy_kwargs: keywords of the policy (``net_arch``, ...).
-    :param verbose: 0 silent, 1 training logs, 2 debug.
-    :param seed: seed of the random generators.
-    :param device: torch device.
-    :param use_sde: SAC's gSDE: only ``False`` (the conservative term samples the policy without it).
-    :param sde_sample_freq: SAC's; unused without gSDE.
-    :param use_sde_at_warmup: SAC's; only ``False``.
-    :param _init_setup_model: build the networks now.
+        ``0`` (the default) is CQL's actor loss as defined (``docs/cql.md`` says what it does on the Panda data).
+    :param kwargs: the offline base's keywords (:class:`~sb3_cql.common.OfflineSAC`: ``learning_rate``,
+        ``buffer_size``, ``normalize_observations``, ``online_fraction``, ``online_buffer_size``, ``learning_starts``,
+        ``deterministic_rollouts``, ``action_chunk``, ``best_of_n``, ``best_of_n_scale``, ``reward_scale``,
+        ``reward_bias``, ``policy_kwargs``) and SAC's (``batch_size``, ``tau``, ``gamma``, ``ent_coef``,
+        ``target_entropy``, ``target_update_interval``, ``train_freq``, ``gradient_steps``, ``action_noise``,
+        ``replay_buffer_class``, ``replay_buffer_kwargs``, ``n_steps``, ``stats_window_size``, ``tensorboard_log``,
+        ``verbose``, ``seed``, ``device``). With a sparse 0/1 reward, a negative ``reward_bias`` (the thesis's code:
+        ``reward_scale`` 4, ``reward_bias`` -2) gives every step that does not reach the goal a cost, and puts the
+        Q-values on the scale of ``cql_target_action_gap``.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -170,61 +93,23 @@ class CQL(OfflineSAC):
         "MultiInputPolicy": MultiInputPolicy,
     }
     policy_from_sac: ClassVar[dict[type[BasePolicy], type[BasePolicy]]] = FROM_SAC
-    #: The replay buffer holds the data's returns-to-go (a :class:`~sb3_cql.common.ReturnToGoReplayBuffer`), for a
-    #: hook that reads them (:class:`~sb3_cql.cql.CalQL`'s :meth:`policy_values_in_logsumexp`).
-    needs_returns_to_go: ClassVar[bool] = False
 
     def __init__(
         self,
         policy: str | type[BasePolicy],
         env: GymEnv | str,
         dataset: MinariDataset | str | ReplayBuffer | None = None,
-        learning_rate: float | Schedule = 3e-4,
         actor_learning_rate: float | Schedule | None = 3e-5,
-        buffer_size: int = 2_000_000,
-        batch_size: int = 256,
-        tau: float = 0.005,
-        gamma: float = 0.99,
-        ent_coef: str | float = "auto",
-        target_entropy: str | float = "auto",
-        target_update_interval: int = 1,
         cql_alpha: float = 10.0,
         cql_n_actions: int = 10,
         cql_temperature: float = 1.0,
         cql_target_action_gap: float | None = None,
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
-        cql_calibrated: bool = False,
         bc_steps: int = 0,
         bc_learning_rate: float | None = None,
         actor_bc_weight: float = 0.0,
-        reward_scale: float = 1.0,
-        reward_bias: float = 0.0,
-        normalize_observations: bool | None = None,
-        online_fraction: float | None = None,
-        online_buffer_size: int = 1_000_000,
-        learning_starts: int = 0,
-        train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = 1,
-        action_noise: ActionNoise | None = None,
-        deterministic_rollouts: bool = False,
-        action_chunk: int = 1,
-        best_of_n: int = 1,
-        best_of_n_scale: float = 1.0,
-        replay_buffer_class: type[ReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        optimize_memory_usage: bool = False,
-        n_steps: int = 1,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        use_sde: bool = False,
-        sde_sample_freq: int = -1,
-        use_sde_at_warmup: bool = False,
-        _init_setup_model: bool = True,
+        **kwargs: Any,
     ) -> None:
         self.cql_alpha = cql_alpha
         self.cql_n_actions = cql_n_actions
@@ -232,53 +117,12 @@ class CQL(OfflineSAC):
         self.cql_target_action_gap = cql_target_action_gap
         self.cql_deterministic_backup = cql_deterministic_backup
         self.cql_max_backup = cql_max_backup
-        self.cql_calibrated = cql_calibrated
         self.bc_steps = bc_steps
         self.bc_learning_rate = bc_learning_rate
         self.actor_bc_weight = actor_bc_weight
-        self.reward_scale = reward_scale
-        self.reward_bias = reward_bias
         self.log_alpha_prime: th.Tensor | None = None
         self.alpha_prime_optimizer: th.optim.Adam | None = None
-        super().__init__(
-            policy,
-            env,
-            dataset=dataset,
-            learning_rate=learning_rate,
-            actor_learning_rate=actor_learning_rate,
-            buffer_size=buffer_size,
-            normalize_observations=normalize_observations,
-            online_fraction=online_fraction,
-            online_buffer_size=online_buffer_size,
-            learning_starts=learning_starts,
-            action_noise=action_noise,
-            deterministic_rollouts=deterministic_rollouts,
-            action_chunk=action_chunk,
-            best_of_n=best_of_n,
-            best_of_n_scale=best_of_n_scale,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            optimize_memory_usage=optimize_memory_usage,
-            n_steps=n_steps,
-            stats_window_size=stats_window_size,
-            use_sde=use_sde,
-            sde_sample_freq=sde_sample_freq,
-            use_sde_at_warmup=use_sde_at_warmup,
-            policy_kwargs=policy_kwargs,
-            batch_size=batch_size,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            tau=tau,
-            gamma=gamma,
-            ent_coef=ent_coef,
-            target_entropy=target_entropy,
-            target_update_interval=target_update_interval,
-            tensorboard_log=tensorboard_log,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-        )
+        super().__init__(policy, env, dataset, actor_learning_rate=actor_learning_rate, **kwargs)
 
     def _check_settings(self) -> None:
         """OfflineSAC's checks, and those of CQL's own settings."""
@@ -287,43 +131,16 @@ class CQL(OfflineSAC):
         check_count("cql_n_actions", self.cql_n_actions, 1)
         check_non_negative([("cql_alpha", self.cql_alpha), ("actor_bc_weight", self.actor_bc_weight)])
         check_non_negative([("cql_temperature", self.cql_temperature)], strictly=True)
-        check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
         if self.cql_target_action_gap is not None:
             check_finite([("cql_target_action_gap", self.cql_target_action_gap)])
         if self.bc_learning_rate is not None:
             check_non_negative([("bc_learning_rate", self.bc_learning_rate)], strictly=True)
-        if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
-            raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
-        if self.needs_returns_to_go and self.action_chunk > 1:
-            raise SettingError("cql_calibrated is not supported with action_chunk > 1 yet (returns-to-go of chunk samples)")
 
     def _setup_model(self) -> None:
-        from sb3_cql.cql.cal_ql import CalQL  # here, not at the top: cal_ql imports this module
-
-        if self.cql_calibrated and not isinstance(self, CalQL):
-            # The one step that construction and load() both take with every setting known (the keywords, a saved
-            # model's data, load's keywords): a calibrated model is a CalQL from here on. CalQL adds methods, no state.
-            self.__class__ = CalQL
-        if self.needs_returns_to_go and isinstance(self.observation_space, spaces.Dict):
-            raise SettingError("cql_calibrated is not supported with Dict observations (returns-to-go need a Box buffer)")
         super()._setup_model()
-        if self.needs_returns_to_go and not isinstance(self.replay_buffer, ReturnToGoReplayBuffer):
-            self._add_returns_to_go_to_buffer()
         if self.cql_target_action_gap is not None:
             self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
-
-    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
-        super()._fill_from_dataset(dataset)
-        if self.needs_returns_to_go:
-            self._add_returns_to_go_to_buffer()
-
-    def _add_returns_to_go_to_buffer(self) -> None:
-        """The replay buffer as a :class:`ReturnToGoReplayBuffer` (its arrays shared) under this model's rewards."""
-        assert self.replay_buffer is not None
-        self.replay_buffer = ReturnToGoReplayBuffer.from_replay_buffer(
-            self.replay_buffer, self.gamma, self.reward_scale, self.reward_bias
-        )
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's ``train()`` with the conservative term added to the critic loss. Each variant of the update is one
@@ -405,12 +222,6 @@ class CQL(OfflineSAC):
             self.logger.record(key, float(np.mean(values)))
 
     # The TD target.
-
-    def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
-        """The rewards the critics learn from, ``reward_scale * reward + reward_bias`` at every step; for an n-step
-        sample (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the
-        rewards: ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
-        return shaped_rewards(replay_data, self.reward_scale, self.reward_bias, self.gamma)
 
     def compute_target(
         self,

@@ -6,11 +6,13 @@ One role a module, each importing only those below it:
 - :mod:`~sb3_cql.data.ids`: dataset ids and paths, and the behaviour policies' names;
 - :mod:`~sb3_cql.data.store`: a dataset on disk (its files and lock, recovery, publication) and its loading;
 - :mod:`~sb3_cql.data.spaces`: whether a dataset or a model fits an env (:func:`check_spaces`);
-- :mod:`~sb3_cql.data.replay`: datasets into SB3's buffers (:func:`fill_replay_buffer`);
+- :mod:`~sb3_cql.data.replay`: Minari datasets into SB3's buffers by bulk copies;
 - :mod:`~sb3_cql.data.selection`: episodes selected by their return;
 - :mod:`~sb3_cql.data.rollouts`: what a dataset is made of, the behaviour policies, one episode;
 - :mod:`~sb3_cql.data.estimates`, :mod:`~sb3_cql.data.assembly` and :mod:`~sb3_cql.data.collection`: a collection's
-  time and disk, its assembly into a Minari dataset, and the collection itself (collect, ensure, mix, resume).
+  time and disk, its assembly into a Minari dataset, and the collection itself (collect, ensure, mix, resume);
+- :mod:`~sb3_cql.data.loading`: the one entry from an id, a Minari dataset or a buffer to a model's replay buffer
+  (:func:`resolve_dataset`, :func:`fill_replay_buffer`, :func:`load_replay_buffer`), with the data checks.
 
 The rollouts and the collection (which import the tasks and the simulator) load on first use of one of their names,
 as do the policy names (read from the tasks), so that loading a dataset, and the algorithms that do, import no
@@ -19,7 +21,7 @@ simulator.
 
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.ids import DEFAULT_NOISE, NAMESPACE, dataset_id, dataset_path
-from sb3_cql.data.replay import fill_replay_buffer
+from sb3_cql.data.loading import fill_replay_buffer, load_replay_buffer, resolve_dataset
 from sb3_cql.data.spaces import check_spaces
 from sb3_cql.data.store import load_dataset
 
@@ -52,6 +54,8 @@ __all__ = [
     "ensure_dataset",
     "fill_replay_buffer",
     "load_dataset",
+    "load_replay_buffer",
     "mix_datasets",
+    "resolve_dataset",
     "standard_collection",
 ]

@@ -30,54 +30,26 @@ from minari.data_collector import EpisodeBuffer
 from tqdm import tqdm
 
 from sb3_cql.data import ids
-from sb3_cql.data.assembly import METADATA_OF_THE_FIRST, assemble, collection_metadata, mix_datasets
+from sb3_cql.data.assembly import assemble, collection_metadata, mix_datasets
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.estimates import (
-    BYTES_PER_EPISODE,
-    BYTES_PER_TRANSITION,
-    CLEAN_ACTION_BYTES_PER_TRANSITION,
-    EPISODE_STEPS,
-    TRANSITIONS_PER_S,
-    WORKER_START_S,
     check_space,
     estimate,
     plan,
 )
 from sb3_cql.data.ids import POLICIES, RANDOM_POLICY
 from sb3_cql.data.rollouts import (
-    BehaviourPolicy,
     CollectionSpec,
     _init_worker,
     _run_episode,
     _run_episodes,
     _worker,
     make_policy,
-    model_action_mode,
 )
 from sb3_cql.data.store import DatasetFiles, load_dataset, other_collection, prepare_folder
-from sb3_cql.processes import INTERRUPTS, WorkerPool, interrupts_deferred, interrupts_noted, keyboard_interrupt
+from sb3_cql.processes import WorkerPool, interrupts_deferred, interrupts_noted, keyboard_interrupt
 
-# The collection's names, with those of the modules it was split into (importable from here as they were before).
-__all__ = [
-    "BYTES_PER_EPISODE",
-    "BYTES_PER_TRANSITION",
-    "CLEAN_ACTION_BYTES_PER_TRANSITION",
-    "EPISODE_STEPS",
-    "INTERRUPTS",
-    "METADATA_OF_THE_FIRST",
-    "TRANSITIONS_PER_S",
-    "WORKER_START_S",
-    "WRITE_EVERY",
-    "BehaviourPolicy",
-    "CollectionSpec",
-    "collect_dataset",
-    "ensure_dataset",
-    "estimate",
-    "make_policy",
-    "mix_datasets",
-    "model_action_mode",
-    "standard_collection",
-]
+__all__ = ["CollectionSpec", "WRITE_EVERY", "collect_dataset", "ensure_dataset", "mix_datasets", "standard_collection"]
 
 #: Episodes written to disk at a time: the most a crash (a killed process, a power cut) can lose. Ctrl-C loses none
 #: of the finished ones: they are written before the collection stops.

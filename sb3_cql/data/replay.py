@@ -1,10 +1,6 @@
 """Minari datasets into SB3's replay buffers (``ReplayBuffer``, ``DictReplayBuffer``, ``NStepReplayBuffer``) by bulk
 array assignment, with clear errors for bad data: data that do not fit the env (:func:`~sb3_cql.data.check_spaces`),
-NaN, actions outside the action space.
-
-The store's :func:`~sb3_cql.data.load_dataset`, :func:`~sb3_cql.data.store.damaged_dataset` and
-:class:`~sb3_cql.data.DatasetError`, and :func:`~sb3_cql.data.check_spaces`, are importable from here too, where they
-were before they had modules of their own.
+NaN, actions outside the action space. Ids and buffers of the user's go through :mod:`sb3_cql.data.loading`.
 """
 
 from __future__ import annotations
@@ -18,9 +14,6 @@ from minari import MinariDataset
 
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.spaces import check_spaces, dataset_name
-from sb3_cql.data.store import damaged_dataset, load_dataset
-
-__all__ = ["DatasetError", "check_box_spaces", "check_spaces", "damaged_dataset", "fill_replay_buffer", "load_dataset"]
 
 if TYPE_CHECKING:  # SB3 (and torch) load only when a buffer is filled: collection workers never need them.
     from stable_baselines3.common.buffers import ReplayBuffer
@@ -46,8 +39,8 @@ def check_box_spaces(dataset: MinariDataset, observation_space: spaces.Space, ac
             )
 
 
-def fill_replay_buffer(
-    dataset: MinariDataset | str,
+def fill_from_minari(
+    dataset: MinariDataset,
     observation_space: spaces.Box,
     action_space: spaces.Box,
     replay_buffer: ReplayBuffer | None = None,
@@ -64,7 +57,7 @@ def fill_replay_buffer(
     copied into the arrays by slices, so the only copy of the data beside the buffer is one episode (one batch
     for non-HDF5 datasets).
 
-    :param dataset: a Minari dataset or its id.
+    :param dataset: a Minari dataset (an id: :func:`~sb3_cql.data.fill_replay_buffer`).
     :param observation_space: the env's observation space (the dataset must match it).
     :param action_space: the env's action space (the dataset must match it).
     :param replay_buffer: a buffer to append to; if it cannot hold its content and the dataset, a larger one
@@ -82,8 +75,6 @@ def fill_replay_buffer(
     from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
     from stable_baselines3.common.vec_env import VecTransposeImage
 
-    if isinstance(dataset, str):
-        dataset = load_dataset(dataset)
     if buffer_observation_space is not None and _shapes(dataset.observation_space) == _shapes(buffer_observation_space):
         observation_space = buffer_observation_space  # images held as the policy sees them (channel-first): as they are
     check_box_spaces(dataset, observation_space, action_space)
@@ -98,9 +89,9 @@ def fill_replay_buffer(
         buffer_class = replay_buffer_class or (DictReplayBuffer if isinstance(buffer_space, spaces.Dict) else ReplayBuffer)
         replay_buffer = buffer_class(n_transitions, buffer_space, action_space, device=device, **(replay_buffer_kwargs or {}))
     if replay_buffer.n_envs != 1 or replay_buffer.optimize_memory_usage:  # (a DictReplayBuffer has the same arrays)
-        raise ValueError("fill_replay_buffer needs a ReplayBuffer with n_envs=1 and optimize_memory_usage=False")
+        raise ValueError("a filled buffer needs a ReplayBuffer with n_envs=1 and optimize_memory_usage=False")
     if replay_buffer.full:
-        raise ValueError("fill_replay_buffer cannot append to a full buffer")
+        raise ValueError("cannot append to a full buffer")
     start = replay_buffer.pos
     if start + n_transitions > replay_buffer.buffer_size:
         replay_buffer = _grown(replay_buffer, start + n_transitions)

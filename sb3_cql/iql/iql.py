@@ -13,14 +13,8 @@ from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, S
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.common.offline import (
-    OfflineSAC,
-    SettingError,
-    check_finite,
-    check_non_negative,
-    finite_loss_value,
-    shaped_rewards,
-)
+from sb3_cql.common.offline import OfflineSAC
+from sb3_cql.common.settings import SettingError, check_finite, check_non_negative, finite_loss_value
 from sb3_cql.iql.policies import CnnPolicy, IQLPolicy, MlpPolicy, MultiInputPolicy, ValueNetwork
 
 if TYPE_CHECKING:
@@ -196,6 +190,8 @@ class IQL(OfflineSAC):
             action_chunk=action_chunk,
             best_of_n=best_of_n,
             best_of_n_scale=best_of_n_scale,
+            reward_scale=reward_scale,
+            reward_bias=reward_bias,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
@@ -360,11 +356,6 @@ class IQL(OfflineSAC):
             polyak_update(self.actor.parameters(), self.policy.actor_average.parameters(), self.actor_average_tau)
 
     # The critics.
-
-    def critic_rewards(self, replay_data: ReplayBufferSamples) -> th.Tensor:
-        """The rewards the critics learn from: ``reward_scale * reward + reward_bias`` a step, summed over an n-step
-        sample's steps with their discounts (:func:`~sb3_cql.common.offline.shaped_rewards`)."""
-        return shaped_rewards(replay_data, self.reward_scale, self.reward_bias, self.gamma)
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
         """The critics' TD target, ``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`; the

@@ -33,8 +33,8 @@ from sb3_cql.protocol.runner import (
     ProtocolError,
     Settings,
     UnitsFailed,
-    run_protocol,
 )
+from sb3_cql.protocol.schedule import run_protocol
 
 #: ``--quick``: training steps, evaluation every ... steps over ... episodes, checkpoints, final episodes.
 QUICK = {"n_timesteps": 2000, "eval_freq": 1000, "eval_episodes": 5, "save_freq": 1000, "episodes": 20}

@@ -1,0 +1,114 @@
+"""Online fine-tuning of an offline model: SB3's SAC loop (``collect_rollouts`` in the env, then ``train``) on a
+:class:`~sb3_cql.common.MixedReplayBuffer` that keeps the offline data beside the new transitions, exploring with the
+policy's samples or its deterministic action plus noise, in single actions or open-loop chunks."""
+
+from __future__ import annotations
+
+import io
+import os
+from typing import Any
+
+import numpy as np
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
+from stable_baselines3.common.noise import ActionNoise
+
+from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer
+
+
+class OnlineFineTuning(SAC):
+    """What :class:`~sb3_cql.common.OfflineSAC` does with ``online_fraction`` set: :meth:`learn_online` is SAC's
+    ``learn`` (its timesteps are env steps; ``train_freq``, ``gradient_steps`` and ``learning_starts`` are SAC's), on a
+    buffer whose batches draw ``online_fraction`` of their samples from the online transitions. The offline data are
+    the model's (:meth:`~sb3_cql.common.OfflineSAC.load_offline_data`); a saved buffer holds the online transitions
+    only, and the offline data come back from the dataset id."""
+
+    online_fraction: float | None
+    online_buffer_size: int
+    deterministic_rollouts: bool
+    action_chunk: int
+
+    def learn_online(self, total_timesteps: int, callback: Any, log_interval: int | None, tb_log_name: str,
+                     reset_num_timesteps: bool, progress_bar: bool) -> Any:  # fmt: skip
+        """SAC's ``learn`` for ``total_timesteps`` env steps on the mixed buffer (the arguments are SB3's)."""
+        self._prepare_online_buffer(reset_num_timesteps)
+        # Chunks run open loop from the first step: SB3's learn starts (or continues) with a new one (and resets the
+        # action noise: a HeldActionNoise draws afresh with the chunk).
+        self._rollout_chunks, self._rollout_episode_starts = None, np.ones(self.n_envs, dtype=bool)
+        log_interval = 4 if log_interval is None else log_interval
+        return SAC.learn(self, total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """SAC's exploration (a sample of the policy, plus ``action_noise`` if any), or with ``deterministic_rollouts``
+        TD3's: the deterministic action plus ``action_noise``, clipped to the action space (after ``learning_starts``;
+        the random warm-up stays SB3's). With action chunks, each chunk (a sample, or the deterministic chunk) runs open
+        loop through the policy's ``state``, a new one when it is used up or an episode ends."""
+        chunked = self.action_chunk > 1
+        if (not self.deterministic_rollouts and not chunked) or self.num_timesteps < learning_starts:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        assert self._last_obs is not None
+        if chunked:
+            action, self._rollout_chunks = self.policy.predict(
+                self._last_obs, self._rollout_chunks, self._rollout_episode_starts, deterministic=self.deterministic_rollouts
+            )
+            self._rollout_episode_starts = np.zeros(n_envs, dtype=bool)
+        else:
+            action, _ = self.predict(self._last_obs, deterministic=True)
+        scaled_action = self.policy.scale_action(action)
+        if action_noise is not None:
+            scaled_action = np.clip(scaled_action + action_noise(), -1, 1)
+        return self.policy.unscale_action(scaled_action), scaled_action
+
+    def _store_transition(self, replay_buffer: ReplayBuffer, buffer_action: np.ndarray, new_obs: Any,
+                          reward: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> None:  # fmt: skip
+        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+        if self.action_chunk > 1:  # an episode that ended starts the next with a new chunk
+            self._rollout_episode_starts = self._rollout_episode_starts | np.asarray(dones, dtype=bool)
+
+    def _prepare_online_buffer(self, reset_num_timesteps: bool) -> None:
+        """Make the replay buffer a :class:`MixedReplayBuffer`: the offline data (the buffer's, or reloaded from the
+        dataset id, also under a loaded buffer of online transitions) and an online part of ``online_buffer_size``."""
+        mixed = self.replay_buffer if isinstance(self.replay_buffer, MixedReplayBuffer) else None
+        if mixed is None:
+            offline = self.load_offline_data()
+            mixed = MixedReplayBuffer(offline, self._empty_buffer_like(offline), self.online_fraction)
+        elif mixed.offline is None:  # a loaded buffer of online transitions: the offline data come from the dataset
+            self.replay_buffer = None
+            try:
+                offline = self.load_offline_data()
+            finally:
+                self.replay_buffer = mixed  # kept, also when the data cannot be loaded
+            mixed.set_offline(offline)
+        mixed.online_fraction = self.online_fraction  # a fraction given to load() applies to a loaded buffer too
+        self.replay_buffer = mixed
+        if reset_num_timesteps or self._last_obs is None:  # SB3's learn resets the env: a new episode starts
+            mixed.start_new_episodes()
+
+    def _empty_buffer_like(self, buffer: ReplayBuffer) -> ReplayBuffer:
+        """An empty buffer of ``online_buffer_size`` of ``buffer``'s class and settings, for this model's env."""
+        kwargs: dict[str, Any] = {}
+        if isinstance(buffer, NStepReplayBuffer):
+            kwargs = {"gamma": buffer.gamma, "n_steps": buffer.n_steps}
+        if isinstance(buffer, ReturnToGoReplayBuffer):
+            kwargs.update(reward_scale=buffer.reward_scale, reward_bias=buffer.reward_bias)
+        return type(buffer)(
+            self.online_buffer_size,
+            self.observation_space,
+            self.action_space,
+            device=self.device,
+            n_envs=self.n_envs,
+            handle_timeout_termination=True,
+            **kwargs,
+        )
+
+    def load_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
+        """SB3's. A fine-tuning buffer comes back with its online transitions only: the offline data this model holds
+        stay under it (else :meth:`learn` reloads them from the dataset id)."""
+        offline = self.replay_buffer.offline if isinstance(self.replay_buffer, MixedReplayBuffer) else self.replay_buffer
+        super().load_replay_buffer(path, truncate_last_traj)
+        loaded = self.replay_buffer
+        keeps = offline is not None and offline.size() >= self.batch_size
+        if isinstance(loaded, MixedReplayBuffer) and loaded.offline is None and keeps and type(offline) is type(loaded.online):
+            loaded.set_offline(offline)
