@@ -11,8 +11,8 @@ from gymnasium import spaces
 from rollouts import random_rollouts, spaces_env
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_cql import BC, CQL, IQL
-from sb3_cql.common import SettingError, TrainingDivergedError, returns_to_go
+from sb3_cql import BC, CQL, IQL, CalQL
+from sb3_cql.common import KeywordError, SettingError, TrainingDivergedError, returns_to_go
 from sb3_cql.iql import expectile_loss
 from sb3_cql.iql.policies import LOG_STD_MAX, LOG_STD_MIN, IQLActor
 
@@ -412,8 +412,8 @@ def test_calibrated_cql_at_gamma_0_999_bounds_by_returns_in_the_same_gamma_and_r
     for step in range(5):
         buffer.add(np.array([step]), np.array([step + 1]), np.array([0.0]), np.array([float(step == 4)]),
                    np.array([step == 4]), [{"TimeLimit.truncated": False}])  # fmt: skip
-    model = CQL("MlpPolicy", env, dataset=buffer, gamma=0.999, cql_calibrated=True, reward_scale=4.0, reward_bias=-2.0,
-                batch_size=4, cql_n_actions=2, policy_kwargs=TINY, seed=0)  # fmt: skip
+    model = CalQL("MlpPolicy", env, dataset=buffer, gamma=0.999, reward_scale=4.0, reward_bias=-2.0, batch_size=4,
+                  cql_n_actions=2, policy_kwargs=TINY, seed=0)  # fmt: skip
     expected = returns_to_go([-2.0, -2.0, -2.0, -2.0, 2.0], truncated=False, gamma=0.999)
     np.testing.assert_allclose(model.replay_buffer.returns_to_go[:5, 0], expected, rtol=1e-6)
     np.testing.assert_allclose(expected[0], -2 * (1 - 0.999**4) / (1 - 0.999) + 2 * 0.999**4, rtol=1e-6)
@@ -489,3 +489,9 @@ def test_filtered_behaviour_cloning_refuses_what_it_cannot_select(tmp_path, monk
         BC("MlpPolicy", env, dataset=dataset, top_fraction=0)
     with pytest.raises(SettingError, match="a replay buffer has no episodes to select"):
         BC("MlpPolicy", env, dataset=random_rollouts(gym.make("Pendulum-v1"), 20), min_return=1.0)
+
+
+def test_iql_refuses_the_keywords_of_an_entropy_term_it_does_not_have():
+    assert "ent_coef" not in IQL.known_keywords() and {"batch_size", "reward_scale", "online_fraction"} <= IQL.known_keywords()
+    with pytest.raises(KeywordError, match=r"^IQL does not take ent_coef, target_entropy: its actor has no entropy term$"):
+        IQL("MlpPolicy", "Pendulum-v1", ent_coef=0.1, target_entropy=-1.0)

@@ -7,19 +7,20 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
 from sb3_cql.common.offline import OfflineSAC
-from sb3_cql.common.settings import SettingError, check_finite, check_non_negative, finite_loss_value
+from sb3_cql.common.settings import KeywordError, SettingError, check_finite, check_non_negative, finite_loss_value
 from sb3_cql.iql.policies import CnnPolicy, IQLPolicy, MlpPolicy, MultiInputPolicy, ValueNetwork
 
 if TYPE_CHECKING:
     from minari import MinariDataset
 
+#: SAC's keywords of its entropy term, which IQL does not have.
+ENTROPY_KEYWORDS = ("ent_coef", "target_entropy", "use_sde", "sde_sample_freq", "use_sde_at_warmup")
 #: The actor's extractions from the critics (``actor_loss_type``).
 ACTOR_LOSS_TYPES = ("awr", "ddpg_awr")
 #: The combinations of the target twins (``q_agg``).
@@ -64,12 +65,6 @@ class IQL(OfflineSAC):
     :param env: the environment (for its spaces, and the default evaluation env).
     :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
         ``buffer_size``. A missing standard id is collected first (:func:`sb3_cql.data.ensure_dataset`).
-    :param learning_rate: learning rate of the critics and the value network.
-    :param actor_learning_rate: learning rate of the actor; ``None`` for ``learning_rate``.
-    :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
-    :param batch_size: minibatch size of each gradient step.
-    :param tau: Polyak coefficient of the target critics.
-    :param gamma: discount factor.
     :param expectile: the value's expectile of Q over the data's actions, in [0.5, 1): 0.5 is SARSA's mean, higher is
         closer to the best action the data show.
     :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning).
@@ -77,38 +72,21 @@ class IQL(OfflineSAC):
     :param actor_loss_type: ``"awr"`` (the paper's advantage-weighted regression) or ``"ddpg_awr"`` (the critics'
         gradient at the actor's action, anchored to the data's actions by the advantage weights).
     :param actor_bc_weight: with ``"ddpg_awr"``, the anchor's weight against the critics' normalised value, as CQL's.
-    :param target_update_interval: gradient steps between target updates.
-    :param reward_scale: the critics learn from ``reward_scale * reward + reward_bias`` (the buffer keeps the data's).
-    :param reward_bias: see ``reward_scale``.
     :param q_agg: how the target twins combine into the value's target and the advantages: ``"min"`` (the
         references') or ``"mean"`` (best-of-N ranks by the minimum either way).
     :param target_floor: the least TD target, in the critics' units: a target below it is raised to it; ``None``
         (the references') leaves the targets as they are.
     :param actor_average_tau: act with an exponential moving average of the actor, moved towards it by this Polyak
         coefficient after each of its steps (saved with the model); ``None`` (the references'): act with the actor.
-    :param best_of_n: act by ranking ``best_of_n`` candidates from the actor by the critics; saved with the model.
-    :param best_of_n_scale: the candidates' standard deviation as a multiple of the actor's; saved with the model.
     :param normalize_observations: z-score the observations with the dataset's statistics inside the policy;
         ``False`` (the references') reads them raw; ``None`` z-scores them for an ``MlpPolicy`` on Box observations.
-    :param online_fraction: ``None`` trains offline; a fraction fine-tunes online with the offline data kept.
-    :param online_buffer_size: capacity of the online transitions when fine-tuning.
-    :param learning_starts: env steps of uniform random actions before training starts, when fine-tuning (SAC's).
-    :param train_freq: env steps (or ``(n, "episode")``) between two trainings, when fine-tuning (SAC's).
-    :param gradient_steps: gradient steps of each training, when fine-tuning (SAC's).
-    :param action_noise: noise added to the actions when fine-tuning (SB3's ``ActionNoise``).
-    :param deterministic_rollouts: when fine-tuning, act with the deterministic action plus ``action_noise``.
-    :param action_chunk: actions per decision (Q-chunking); ``1``: one action a state.
-    :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
-    :param replay_buffer_kwargs: keywords of that class (SAC's).
-    :param optimize_memory_usage: SAC's; only ``False``.
-    :param n_steps: SB3's n-step returns: the TD target sums up to ``n_steps`` rewards and bootstraps on ``V``.
-    :param stats_window_size: episodes averaged in the rollout logs when fine-tuning (SAC's).
-    :param tensorboard_log: TensorBoard log folder.
-    :param policy_kwargs: keywords of the policy (``net_arch``, ``critic_layer_norm``, ...).
-    :param verbose: 0 silent, 1 training logs, 2 debug.
-    :param seed: seed of the random generators.
-    :param device: torch device.
-    :param _init_setup_model: build the networks now.
+    :param kwargs: the offline base's keywords (:class:`~sb3_cql.common.OfflineSAC`: ``learning_rate`` (the critics'
+        and the value network's), ``actor_learning_rate``, ``buffer_size``, ``online_fraction``, ``online_buffer_size``,
+        ``learning_starts``, ``deterministic_rollouts``, ``action_chunk``, ``best_of_n``, ``best_of_n_scale``,
+        ``reward_scale``, ``reward_bias``, ``policy_kwargs``) and SAC's but its entropy's (``batch_size``, ``tau``,
+        ``gamma``, ``target_update_interval``, ``train_freq``, ``gradient_steps``, ``action_noise``,
+        ``replay_buffer_class``, ``replay_buffer_kwargs``, ``n_steps``, ``stats_window_size``, ``tensorboard_log``,
+        ``verbose``, ``seed``, ``device``).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -124,93 +102,35 @@ class IQL(OfflineSAC):
         policy: str | type[BasePolicy],
         env: GymEnv | str,
         dataset: MinariDataset | str | ReplayBuffer | None = None,
-        learning_rate: float | Schedule = 3e-4,
-        actor_learning_rate: float | Schedule | None = None,
-        buffer_size: int = 2_000_000,
-        batch_size: int = 256,
-        tau: float = 0.005,
-        gamma: float = 0.99,
         expectile: float = 0.7,
         temperature: float = 3.0,
         max_weight: float = 100.0,
         actor_loss_type: str = "awr",
         actor_bc_weight: float = 0.4,
-        target_update_interval: int = 1,
-        reward_scale: float = 1.0,
-        reward_bias: float = 0.0,
         q_agg: str = "min",
         target_floor: float | None = None,
         actor_average_tau: float | None = None,
-        best_of_n: int = 1,
-        best_of_n_scale: float = 1.0,
         normalize_observations: bool | None = False,
-        online_fraction: float | None = None,
-        online_buffer_size: int = 1_000_000,
-        learning_starts: int = 0,
-        train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = 1,
-        action_noise: ActionNoise | None = None,
-        deterministic_rollouts: bool = False,
-        action_chunk: int = 1,
-        replay_buffer_class: type[ReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        optimize_memory_usage: bool = False,
-        n_steps: int = 1,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
+        **kwargs: Any,
     ) -> None:
         self.expectile = expectile
         self.temperature = temperature
         self.max_weight = max_weight
         self.actor_loss_type = actor_loss_type
         self.actor_bc_weight = actor_bc_weight
-        self.reward_scale = reward_scale
-        self.reward_bias = reward_bias
         self.q_agg = q_agg
         self.target_floor = target_floor
         self.actor_average_tau = actor_average_tau
-        super().__init__(
-            policy,
-            env,
-            dataset=dataset,
-            learning_rate=learning_rate,
-            actor_learning_rate=actor_learning_rate,
-            buffer_size=buffer_size,
-            normalize_observations=normalize_observations,
-            online_fraction=online_fraction,
-            online_buffer_size=online_buffer_size,
-            learning_starts=learning_starts,
-            action_noise=action_noise,
-            deterministic_rollouts=deterministic_rollouts,
-            action_chunk=action_chunk,
-            best_of_n=best_of_n,
-            best_of_n_scale=best_of_n_scale,
-            reward_scale=reward_scale,
-            reward_bias=reward_bias,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            optimize_memory_usage=optimize_memory_usage,
-            n_steps=n_steps,
-            stats_window_size=stats_window_size,
-            policy_kwargs=policy_kwargs,
-            batch_size=batch_size,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            tau=tau,
-            gamma=gamma,
-            ent_coef=0.0,  # no entropy term: SAC's coefficient stays a constant, never learned
-            target_update_interval=target_update_interval,
-            tensorboard_log=tensorboard_log,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-        )
+        entropy = sorted(set(kwargs) & set(ENTROPY_KEYWORDS))
+        if entropy:
+            raise KeywordError(f"IQL does not take {', '.join(entropy)}: its actor has no entropy term")
+        # No entropy term: SAC's coefficient stays a constant 0, never learned.
+        super().__init__(policy, env, dataset, normalize_observations=normalize_observations, ent_coef=0.0, **kwargs)
+
+    @classmethod
+    def known_keywords(cls) -> set[str]:
+        """The offline base's keywords and SAC's, but those of SAC's entropy term."""
+        return super().known_keywords() - set(ENTROPY_KEYWORDS)
 
     def _check_settings(self) -> None:
         """OfflineSAC's checks, and those of IQL's own settings."""
@@ -221,7 +141,6 @@ class IQL(OfflineSAC):
         check_non_negative([("temperature", self.temperature)])
         check_non_negative([("max_weight", self.max_weight)], strictly=True)
         check_non_negative([("actor_bc_weight", self.actor_bc_weight)])
-        check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
         if self.target_floor is not None:
             check_finite([("target_floor", self.target_floor)])
         tau = self.actor_average_tau
@@ -230,8 +149,6 @@ class IQL(OfflineSAC):
         for name, choices in (("q_agg", Q_AGGREGATIONS), ("actor_loss_type", ACTOR_LOSS_TYPES)):
             if getattr(self, name) not in choices:
                 raise SettingError(f"{name} must be one of {', '.join(map(repr, choices))}, got {getattr(self, name)!r}")
-        if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
-            raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
         if not issubclass(self.policy_class, IQLPolicy):
             name = getattr(self.policy_class, "__name__", self.policy_class)
             raise SettingError(f"IQL needs a policy with a value network (sb3_cql.iql.policies), got {name}")
