@@ -4,7 +4,7 @@ chunks, next to SB3's SAC on the same task.
     python benchmarks/finetune_speed.py [--env PandaForce-v0] [--steps 300] [--rounds 3] [--threads 1]
 
 Our CQL gets the settings of ``hyperparams/cql.yml`` (networks, batch, sampled actions, rewards, anchor) and of
-``hyperparams/cql_finetune.yml`` (online fraction, one gradient step per env step), calibrated (``cql_calibrated``),
+``hyperparams/cql_finetune.yml`` (online fraction, one gradient step per env step), calibrated (``CalQL``),
 with an offline part of 20,000 random Panda-shaped transitions (the speed does not depend on what they hold). The
 chunked config is the same model with ``action_chunk: 5`` and the config's ``chunked`` settings (one gradient step per
 chunk of 5 env steps, pink noise), uncalibrated (calibration is not supported with chunks). SB3's SAC gets the same
@@ -31,7 +31,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import CQL
+from sb3_cql import CQL, CalQL
 from sb3_cql.common import HeldActionNoise, pink_action_noise
 from sb3_cql.zoo.plugin import CHUNKED_KEY, hyperparams_dir
 
@@ -94,7 +94,7 @@ def cql_steps_per_s(env: gym.Env, settings: dict[str, Any], steps: int) -> tuple
     if "action_noise" in settings:
         settings["action_noise"] = make_noise(settings["action_noise"], env)
     calibrated = settings.get("action_chunk", 1) == 1
-    model = CQL("MlpPolicy", env, dataset=offline_buffer(env), cql_calibrated=calibrated, seed=0, **settings)
+    model = (CalQL if calibrated else CQL)("MlpPolicy", env, dataset=offline_buffer(env), seed=0, **settings)
     model.set_logger(Logger(None, []))
     model.learn(10)
     updates, start = model._n_updates, time.perf_counter()

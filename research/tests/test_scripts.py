@@ -25,7 +25,7 @@ from rollouts import random_rollouts
 from stable_baselines3 import SAC
 
 import envs
-from sb3_cql import BC, CQL, IQL
+from sb3_cql import BC, CQL, IQL, CalQL
 from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -70,9 +70,9 @@ def inputs(tmp_path_factory):
                    policy_kwargs={"net_arch": [32]}, seed=0)  # fmt: skip
         clone.learn(3)
         clone.save(root / "bc.zip")
-        finetuned = CQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, batch_size=16,
-                        policy_kwargs={"net_arch": [32]}, cql_calibrated=True, online_fraction=0.5, reward_scale=4.0,
-                        reward_bias=-2.0, seed=0)  # fmt: skip
+        finetuned = CalQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, batch_size=16,
+                          policy_kwargs={"net_arch": [32]}, online_fraction=0.5, reward_scale=4.0, reward_bias=-2.0,
+                          seed=0)  # fmt: skip
         finetuned.learn(FINETUNED_STEPS)
         finetuned.save(root / "finetuned.zip")
         finetuned.save_replay_buffer(root / "finetuned_buffer.pkl")
