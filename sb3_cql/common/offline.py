@@ -295,12 +295,7 @@ class OfflineSAC(OnlineFineTuning):
 
         buffer = load_replay_buffer(dataset, self.observation_space, self.action_space, self._data_observation_space(),
                                     self.device, self.replay_buffer_class, self.replay_buffer_kwargs)  # fmt: skip
-        if buffer is dataset:  # a buffer of the user's, read through views
-            if buffer.obs_shape != get_obs_shape(self.observation_space):
-                buffer = transposed_images(buffer, self.observation_space)
-            chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
-            buffer = with_n_step_returns(buffer, self.n_steps, self.gamma, chunks)
-        self.replay_buffer = buffer
+        self.replay_buffer = self._read_as_trained(buffer) if buffer is dataset else buffer
         size = buffer.size()
         if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
             observations = self.replay_buffer.observations[:size].reshape(size, -1)
@@ -308,6 +303,14 @@ class OfflineSAC(OnlineFineTuning):
             for module in self.policy.modules():  # the actor's, the critics' and any other network's (IQL's value)
                 if isinstance(module, NormalizedFlatten):
                     module.set_statistics(mean, std)
+
+    def _read_as_trained(self, buffer: ReplayBuffer) -> ReplayBuffer:
+        """A buffer of the user's through the views this model trains with: images as the policy sees them, SB3's
+        n-step returns (or action chunks) for ``n_steps`` > 1."""
+        if buffer.obs_shape != get_obs_shape(self.observation_space):
+            buffer = transposed_images(buffer, self.observation_space)
+        chunks = self.replay_buffer_class if self.replay_buffer_class is ActionChunkReplayBuffer else NStepReplayBuffer
+        return with_n_step_returns(buffer, self.n_steps, self.gamma, chunks)
 
     def _data_observation_space(self) -> spaces.Space:
         """The env's observation space as the data hold it: before SB3's ``VecTransposeImage``, which makes
@@ -379,6 +382,8 @@ class OfflineSAC(OnlineFineTuning):
         too_few = self.replay_buffer is None or self.replay_buffer.size() < self.batch_size
         if too_few and isinstance(self.dataset, str):  # a loaded model trains on its dataset again
             self._fill_from_dataset(self.dataset)
+        elif type(self.replay_buffer) is ReplayBuffer:  # set by hand: read as the model reads its data
+            self.replay_buffer = self._read_as_trained(self.replay_buffer)
         if self.replay_buffer is None or self.replay_buffer.size() < self.batch_size:
             size = 0 if self.replay_buffer is None else self.replay_buffer.size()
             hint = "" if isinstance(self.dataset, str) else " (a loaded model reloads them from its dataset id; none here)"
