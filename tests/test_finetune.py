@@ -78,3 +78,18 @@ def test_the_online_fraction_decides_where_each_batch_comes_from(online_fraction
     sampled = buffer.sample(200).observations.numpy()
     from_offline = np.isin(sampled[:, 0], offline.observations[:400, 0, 0])
     assert from_offline.all() if online_fraction == 0.0 else not from_offline.any()
+
+
+def test_the_warm_up_before_learning_starts_acts_with_the_models_policy_not_at_random():
+    """WSRL's warm-up: the first ``learning_starts`` env steps are the offline model's own rollouts (here its
+    deterministic action), with no gradient step; SAC would act uniformly at random."""
+    offline = pendulum_buffer()
+    model = IQL("MlpPolicy", "Pendulum-v1", dataset=offline, batch_size=32, policy_kwargs=TINY, seed=5,
+                online_fraction=1.0, online_buffer_size=1_000, learning_starts=150, deterministic_rollouts=True)  # fmt: skip
+    model.learn(150)
+    online = model.replay_buffer.online
+    assert online.size() == 150 and model._n_updates == 0
+    deterministic, _ = model.predict(online.observations[:150, 0], deterministic=True)
+    np.testing.assert_allclose(online.actions[:150, 0], model.policy.scale_action(deterministic), atol=1e-6)
+    model.learn(10, reset_num_timesteps=False)
+    assert model._n_updates == 10  # then one gradient step per env step, from the online transitions only

@@ -42,12 +42,14 @@ class OnlineFineTuning(SAC):
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
         """SAC's exploration (a sample of the policy, plus ``action_noise`` if any), or with ``deterministic_rollouts``
-        TD3's: the deterministic action plus ``action_noise``, clipped to the action space (after ``learning_starts``;
-        the random warm-up stays SB3's). With action chunks, each chunk (a sample, or the deterministic chunk) runs open
-        loop through the policy's ``state``, a new one when it is used up or an episode ends."""
+        TD3's: the deterministic action plus ``action_noise``, clipped to the action space. With action chunks, each
+        chunk (a sample, or the deterministic chunk) runs open loop through the policy's ``state``, a new one when it is
+        used up or an episode ends. The model was trained offline: its first ``learning_starts`` env steps, before any
+        gradient step, act as the rest do (WSRL's warm-up of the model's own rollouts), not with SB3's uniform random
+        actions."""
         chunked = self.action_chunk > 1
-        if (not self.deterministic_rollouts and not chunked) or self.num_timesteps < learning_starts:
-            return super()._sample_action(learning_starts, action_noise, n_envs)
+        if not self.deterministic_rollouts and not chunked:
+            return super()._sample_action(0, action_noise, n_envs)
         assert self._last_obs is not None
         if chunked:
             action, self._rollout_chunks = self.policy.predict(

@@ -97,7 +97,8 @@ class OfflineSAC(OnlineFineTuning):
     :param online_fraction: ``None`` to train offline; else fine-tune online, drawing this fraction of every batch
         from the online transitions (RLPD's symmetric sampling: 0.5).
     :param online_buffer_size: capacity of the online transitions when fine-tuning.
-    :param learning_starts: env steps of random actions before training starts, when fine-tuning (SAC's).
+    :param learning_starts: env steps before the first gradient step, when fine-tuning (SAC's): the model's own
+        rollouts (WSRL's warm-up), not SAC's uniform random actions.
     :param action_chunk: actions per decision (Q-chunking): the actor emits ``action_chunk`` actions at once, the
         critics score the state with the whole chunk, the TD target sums the chunk's rewards and bootstraps with
         ``gamma ** action_chunk`` (SB3's n-step returns over the chunk, ``n_steps = action_chunk``), the data are read
