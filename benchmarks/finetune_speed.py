@@ -33,24 +33,31 @@ from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 import envs  # noqa: F401  (registers the tasks)
 from sb3_cql import CQL, CalQL
 from sb3_cql.common import HeldActionNoise, pink_action_noise
-from sb3_cql.zoo.plugin import CHUNKED_KEY, hyperparams_dir
+from sb3_cql.zoo.plugin import hyperparams_dir
 
 N_OFFLINE = 20_000
 #: Keys of the zoo configs that are not CQL's keywords.
 ZOO_ONLY = {"policy", "dataset", "env_kwargs", "n_timesteps", "monitor_kwargs", "eval_freq", "n_eval_episodes",
-            "save_freq", "noise_type", "noise_std", "noise_hold", CHUNKED_KEY}  # fmt: skip
+            "save_freq", "noise_type", "noise_std", "noise_hold", "callback"}  # fmt: skip
+#: The config's callback that sets the exploration noise (sb3_cql.zoo.callbacks).
+NOISE_CALLBACK = "sb3_cql.zoo.callbacks.ExplorationNoise"
 #: The chunk length of the chunked config.
 CHUNK = 5
 
 
 def config(env_id: str, chunked: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
     """``(CQL's keywords, env kwargs)`` of the offline config of Panda-v0 and the fine-tuning config of ``env_id``;
-    ``chunked``: of a model of :data:`CHUNK` actions a chunk, with the fine-tuning config's ``chunked`` settings.
+    ``chunked``: of a model of :data:`CHUNK` actions a chunk, with ``cql_finetune_chunked.yml``.
     The action noise is ``("normal" or "pink", std, hold)``, made for the env's action space by :func:`make_noise`."""
     offline = yaml.safe_load((hyperparams_dir() / "cql.yml").read_text())["Panda-v0"]
-    online = yaml.safe_load((hyperparams_dir() / "cql_finetune.yml").read_text())[env_id]
-    if chunked:
-        online = {**online, **online.get(CHUNKED_KEY, {})}
+    online_config = "cql_finetune_chunked.yml" if chunked else "cql_finetune.yml"
+    online = yaml.safe_load((hyperparams_dir() / online_config).read_text())[env_id]
+    for entry in online.get("callback") or []:  # ExplorationNoise's keywords as the noise keys they stand for
+        if isinstance(entry, dict) and NOISE_CALLBACK in entry:
+            noise = entry[NOISE_CALLBACK]
+            if noise.get("pink_std") is not None:
+                online = {**online, "noise_type": "pink", "noise_std": noise["pink_std"]}
+            online = {**online, "noise_hold": noise.get("hold", 1)}
     settings = {key: value for key, value in {**offline, **online}.items() if key not in ZOO_ONLY}
     settings["policy_kwargs"] = eval(settings["policy_kwargs"]) if "policy_kwargs" in settings else None
     if online.get("noise_type", "normal") not in ("normal", "pink"):
