@@ -130,7 +130,7 @@ class Protocol:
         """Clear errors before any work: unknown algorithms or tasks, a zoo without our config for an algorithm."""
         from rl_zoo3.utils import ALGOS
 
-        from sb3_cql.zoo.manager import config_file
+        from sb3_cql.zoo.plugin import config_file
 
         self._check_numbers()
         self._check_results_folder()
@@ -253,7 +253,7 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: s
     times: dict[str, list[float]] = read_json(times_path) or {}
     from rl_zoo3.utils import get_latest_run_id
 
-    from sb3_cql.zoo.manager import hyperparams_dir
+    from sb3_cql.zoo.plugin import hyperparams_dir
 
     run = Run.read(log_folder, env_id, outside_start=task is not None)
     while not run.is_complete():
@@ -321,7 +321,7 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: s
 
 def _config_dataset(algo: str, settings: Settings) -> str | None:
     """The dataset of ``algo``'s config in our hyperparams/ (``None`` with a ``--conf-file`` of the zoo arguments)."""
-    from sb3_cql.zoo.manager import config_file
+    from sb3_cql.zoo.plugin import config_file
 
     if any(arg.startswith(("--conf-file", "-conf")) for arg in settings.zoo_args):
         return None
