@@ -438,7 +438,8 @@ class OfflineSAC(OnlineFineTuning):
         cls.refuse_unknown_keywords(kwargs)  # SB3 would set any keyword as an attribute, and train on without it
         saved = saved_algorithm(path)
         if saved is not None and saved not in [klass.__name__ for klass in cls.__mro__]:
-            raise SettingError(f"{path} holds a {saved} model: load it with {saved}.load (in the zoo, --algo "
+            article = "an" if saved[0] in "AEIOU" else "a"
+            raise SettingError(f"{path} holds {article} {saved} model: load it with {saved}.load (in the zoo, --algo "
                                f"{saved.lower()})")  # fmt: skip
         kwargs.setdefault("buffer_size", 1)
         kwargs["_fill_on_setup"] = False
