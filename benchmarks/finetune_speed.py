@@ -1,15 +1,16 @@
-"""Online fine-tuning's env steps/s and gradient steps/s at the shipped configs, one action a state and in action
-chunks, next to SB3's SAC on the same task.
+"""Online fine-tuning's env steps/s and gradient steps/s at the shipped configs (CQL one action a state and in action
+chunks, IQL), next to SB3's SAC on the same task.
 
     python benchmarks/finetune_speed.py [--env PandaForce-v0] [--steps 300] [--rounds 3] [--threads 1]
 
 Our CQL gets the settings of ``hyperparams/cql.yml`` (networks, batch, sampled actions, rewards, anchor) and of
-``hyperparams/cql_finetune.yml`` (online fraction, one gradient step per env step), calibrated (``CalQL``),
-with an offline part of 20,000 random Panda-shaped transitions (the speed does not depend on what they hold). The
-chunked config is the same model with ``action_chunk: 5`` and the config's ``chunked`` settings (one gradient step per
-chunk of 5 env steps, pink noise), uncalibrated (calibration is not supported with chunks). SB3's SAC gets the same
-networks, batch and training frequency as the first, and no offline data. Each round runs ``--steps`` env steps of
-each, back to back, in the task's env with the config's action mode; medians are reported, and for the ratios the
+``hyperparams/cql_finetune.yml`` (online fraction, one gradient step per env step), calibrated (``CalQL``); in chunks,
+the same model with ``action_chunk: 5`` and ``hyperparams/cql_finetune_chunked.yml`` (one gradient step per chunk of 5
+env steps, pink noise), uncalibrated. Our IQL gets ``hyperparams/iql_yaw.yml`` (the random-yaw recipe: 3 x 256
+networks, batch 256, 25-step returns, the averaged actor) and ``hyperparams/iql_finetune.yml``. Each has an offline
+part of 20,000 random Panda-shaped transitions (the speed does not depend on what they hold), and each is timed beside
+SB3's SAC with its networks, batch and training frequency and no offline data. Each round runs ``--steps`` env steps
+of each, back to back, in the task's env with the config's action mode; medians are reported, and for the ratios the
 median of the rounds' ratios. The env alone (random actions) is timed in the same rounds: what is left of a step is
 the policy's action and the gradient step.
 """
@@ -31,7 +32,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import CQL, CalQL
+from sb3_cql import CQL, IQL, CalQL
 from sb3_cql.common import HeldActionNoise, pink_action_noise
 from sb3_cql.zoo.plugin import hyperparams_dir
 
@@ -45,12 +46,21 @@ NOISE_CALLBACK = "sb3_cql.zoo.callbacks.ExplorationNoise"
 CHUNK = 5
 
 
-def config(env_id: str, chunked: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``(CQL's keywords, env kwargs)`` of the offline config of Panda-v0 and the fine-tuning config of ``env_id``;
-    ``chunked``: of a model of :data:`CHUNK` actions a chunk, with ``cql_finetune_chunked.yml``.
-    The action noise is ``("normal" or "pink", std, hold)``, made for the env's action space by :func:`make_noise`."""
-    offline = yaml.safe_load((hyperparams_dir() / "cql.yml").read_text())["Panda-v0"]
-    online_config = "cql_finetune_chunked.yml" if chunked else "cql_finetune.yml"
+#: The configs timed: ``(offline config, its entry, fine-tuning config)`` by name.
+CONFIGS = {
+    "cql": ("cql.yml", "Panda-v0", "cql_finetune.yml"),
+    "chunked": ("cql.yml", "Panda-v0", "cql_finetune_chunked.yml"),
+    "iql": ("iql_yaw.yml", "PandaForce-v0", "iql_finetune.yml"),
+}
+
+
+def config(env_id: str, name: str = "cql") -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(the algorithm's keywords, env kwargs)`` of the offline config and the fine-tuning config of ``env_id`` named
+    in :data:`CONFIGS`; ``"chunked"``: of a CQL model of :data:`CHUNK` actions a chunk, with
+    ``cql_finetune_chunked.yml``. The action noise is ``("normal" or "pink", std, hold)``, made for the env's action
+    space by :func:`make_noise`."""
+    offline_config, entry, online_config = CONFIGS[name]
+    offline = yaml.safe_load((hyperparams_dir() / offline_config).read_text())[entry]
     online = yaml.safe_load((hyperparams_dir() / online_config).read_text())[env_id]
     for entry in online.get("callback") or []:  # ExplorationNoise's keywords as the noise keys they stand for
         if isinstance(entry, dict) and NOISE_CALLBACK in entry:
@@ -68,7 +78,7 @@ def config(env_id: str, chunked: bool = False) -> tuple[dict[str, Any], dict[str
             float(online["noise_std"]),
             online.get("noise_hold", 1),
         )
-    if chunked:
+    if name == "chunked":
         settings["action_chunk"] = CHUNK
     return settings, online.get("env_kwargs", {})
 
@@ -95,13 +105,14 @@ def offline_buffer(env: gym.Env) -> ReplayBuffer:
     return buffer
 
 
-def cql_steps_per_s(env: gym.Env, settings: dict[str, Any], steps: int) -> tuple[float, float]:
-    """``(env steps/s, gradient steps/s)`` of our CQL fine-tuning (calibrated, unless in chunks)."""
+def ours_steps_per_s(env: gym.Env, settings: dict[str, Any], steps: int, name: str = "cql") -> tuple[float, float]:
+    """``(env steps/s, gradient steps/s)`` of our fine-tuning of the config ``name`` (CQL calibrated, unless in
+    chunks)."""
     settings = {**settings, "policy_kwargs": dict(settings["policy_kwargs"])}  # SB3 writes into it
     if "action_noise" in settings:
         settings["action_noise"] = make_noise(settings["action_noise"], env)
-    calibrated = settings.get("action_chunk", 1) == 1
-    model = (CalQL if calibrated else CQL)("MlpPolicy", env, dataset=offline_buffer(env), seed=0, **settings)
+    algorithm = {"cql": CalQL, "chunked": CQL, "iql": IQL}[name]
+    model = algorithm("MlpPolicy", env, dataset=offline_buffer(env), seed=0, **settings)
     model.set_logger(Logger(None, []))
     model.learn(10)
     updates, start = model._n_updates, time.perf_counter()
@@ -139,29 +150,38 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300, help="env steps of each measurement")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: as the measured fine-tuning runs)")
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        choices=sorted(CONFIGS),
+        default=sorted(CONFIGS),
+        help="the configs to time (each beside SB3's SAC at its networks, batch and frequency)",
+    )
     args = parser.parse_args()
     th.set_num_threads(args.threads)
-    settings, env_kwargs = config(args.env)
-    chunked, _ = config(args.env, chunked=True)
-    env = gym.make(args.env, **env_kwargs)
-    print(f"# {args.env} {env_kwargs}, batch {settings.get('batch_size')}, {settings['policy_kwargs']}, "
-          f"{settings.get('cql_n_actions')} sampled actions, online fraction {settings.get('online_fraction')}, "
-          f"{args.threads} thread(s), medians of {args.rounds} rounds of {args.steps} env steps")  # fmt: skip
-    results: dict[str, list[tuple[float, float]]] = {"cql": [], "chunked": [], "sac": []}
+    settings = {name: config(args.env, name) for name in args.only}
+    env = gym.make(args.env, **next(iter(settings.values()))[1])
+    for name, (keywords, env_kwargs) in settings.items():
+        print(f"# {name}: {args.env} {env_kwargs}, batch {keywords.get('batch_size')}, {keywords['policy_kwargs']}, "
+              f"online fraction {keywords.get('online_fraction')}, n_steps {keywords.get('n_steps', 1)}")  # fmt: skip
+    print(f"# {args.threads} thread(s), medians of {args.rounds} rounds of {args.steps} env steps, side by side")
+    results: dict[str, list[tuple[float, float]]] = {key: [] for name in args.only for key in (name, f"sac-{name}")}
     alone: list[float] = []
     for _ in range(args.rounds):
-        results["cql"].append(cql_steps_per_s(env, settings, args.steps))
-        results["chunked"].append(cql_steps_per_s(env, chunked, args.steps))
-        results["sac"].append(sac_steps_per_s(env, settings, args.steps))
+        for name, (keywords, _) in settings.items():
+            results[name].append(ours_steps_per_s(env, keywords, args.steps, name))
+            results[f"sac-{name}"].append(sac_steps_per_s(env, keywords, args.steps))
         alone.append(env_steps_per_s(env, 5 * args.steps))
-    names = {"cql": "our CQL fine-tuning", "chunked": f"chunked (h {CHUNK})", "sac": "SB3 SAC"}
-    for key, name in names.items():
-        env_rate = statistics.median(rate for rate, _ in results[key])
-        gradient_rate = statistics.median(rate for _, rate in results[key])
-        print(f"{name:20s} {env_rate:8.2f} env steps/s {gradient_rate:8.2f} gradient steps/s")
-    for key, reference in (("cql", "sac"), ("chunked", "cql"), ("chunked", "sac")):
-        ratio = statistics.median(ours[0] / other[0] for ours, other in zip(results[key], results[reference], strict=True))
-        print(f"{names[key]} / {names[reference]} (env steps/s): {ratio:.2f} (median of the rounds' ratios)")
+    names = {"cql": "our CQL fine-tuning", "chunked": f"CQL in chunks (h {CHUNK})", "iql": "our IQL fine-tuning"}
+    for key, values in results.items():
+        label = f"SB3 SAC as {key[4:]}" if key.startswith("sac-") else names[key]
+        env_rate = statistics.median(rate for rate, _ in values)
+        gradient_rate = statistics.median(rate for _, rate in values)
+        print(f"{label:28s} {env_rate:8.2f} env steps/s {gradient_rate:8.2f} gradient steps/s")
+    for name in args.only:
+        pairs = zip(results[name], results[f"sac-{name}"], strict=True)
+        ratio = statistics.median(ours[0] / sac[0] for ours, sac in pairs)
+        print(f"{names[name]} / SB3 SAC at its settings (env steps/s): {ratio:.2f} (median of the rounds' ratios)")
     print(f"env alone, random actions: {statistics.median(alone):.0f} steps/s")
 
 
