@@ -16,7 +16,7 @@ from typing import Any
 
 from sb3_cql.files import replace_atomically, sync_folder, temporary_path, write_atomically
 
-__all__ = ["replace_atomically", "save_atomically", "saved_model_problem", "sb3_save_path", "sync_folder",
+__all__ = ["check_saved_model", "replace_atomically", "save_atomically", "saved_model_problem", "sb3_save_path", "sync_folder",
            "temporary_path", "with_atomic_saves", "write_atomically"]  # fmt: skip
 
 
@@ -84,3 +84,15 @@ def saved_model_problem(path: str | os.PathLike) -> str | None:
     except (OSError, EOFError, zlib.error) as error:
         return f"it cannot be read ({error})"
     return None
+
+
+def check_saved_model(path: Any) -> None:
+    """A ``ValueError`` naming the file and what it lacks where the SB3 model file at ``path`` (or ``path`` + ``.zip``,
+    as SB3 reads it) does not open (:func:`saved_model_problem`); nothing for a file object, or a path without a file
+    (SB3's ``load`` says so itself)."""
+    if not isinstance(path, (str, os.PathLike)):
+        return
+    found = next((file for file in (Path(path), Path(f"{path}.zip")) if file.is_file()), None)
+    problem = None if found is None else saved_model_problem(found)
+    if problem is not None:
+        raise ValueError(f"cannot load {found}: {problem}")

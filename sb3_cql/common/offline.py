@@ -25,12 +25,13 @@ from stable_baselines3.common.vec_env import VecTransposeImage, unwrap_vec_wrapp
 from torch.nn import functional as F
 
 from sb3_cql.common.allocator import retain_freed_memory
-from sb3_cql.common.atomic import save_atomically
+from sb3_cql.common.atomic import check_saved_model, save_atomically
 from sb3_cql.common.buffers import ActionChunkReplayBuffer, transposed_images, with_n_step_returns
 from sb3_cql.common.finetune import OnlineFineTuning
 from sb3_cql.common.policies import FROM_SAC, CnnPolicy, MlpPolicy, MultiInputPolicy, NormalizedFlatten, OfflinePolicy
 from sb3_cql.common.settings import (
     SettingError,
+    check_best_of_n,
     check_count,
     check_entropy,
     check_finite,
@@ -155,7 +156,7 @@ class OfflineSAC(OnlineFineTuning):
         refuse_unsupported(kwargs)
         check_keywords(type(self).__name__, kwargs, inspect.signature(SAC.__init__).parameters)
         check_count("action_chunk", action_chunk, 1)
-        check_count("best_of_n", best_of_n, 1)
+        check_best_of_n(best_of_n)
         check_non_negative([("best_of_n_scale", best_of_n_scale)], strictly=True)
         self.best_of_n, self.best_of_n_scale = best_of_n, best_of_n_scale
         self.reward_scale, self.reward_bias = reward_scale, reward_bias
@@ -244,7 +245,7 @@ class OfflineSAC(OnlineFineTuning):
         check_finite([("reward_scale", self.reward_scale), ("reward_bias", self.reward_bias)])
         if self.n_steps > 1 and self.reward_bias != 0 and self.gamma >= 1:
             raise SettingError("reward_bias with n_steps > 1 needs gamma < 1: the bias is summed over the steps of a sample")
-        check_count("best_of_n", getattr(self, "best_of_n", 1), 1)
+        check_best_of_n(getattr(self, "best_of_n", 1))
         check_non_negative([("best_of_n_scale", getattr(self, "best_of_n_scale", 1.0))], strictly=True)
         fraction = self.online_fraction
         if fraction is not None and not (isinstance(fraction, (int, float)) and 0.0 <= fraction <= 1.0):
@@ -396,7 +397,7 @@ class OfflineSAC(OnlineFineTuning):
         """The rewards the critics learn from, ``reward_scale * reward + reward_bias`` at every step; for an n-step
         sample (its ``discounts`` set) the bias is summed over the steps with their discounts, as the buffer sums the
         rewards: ``reward_scale * rewards + reward_bias * (1 - discounts) / (1 - gamma)``."""
-        if replay_data.discounts is None:
+        if replay_data.discounts is None or self.reward_bias == 0:  # (no sum of discounts: 0 / 0 with gamma 1)
             return self.reward_scale * replay_data.rewards + self.reward_bias
         steps = (1.0 - replay_data.discounts) / (1.0 - self.gamma)
         return self.reward_scale * replay_data.rewards + self.reward_bias * steps
@@ -436,6 +437,7 @@ class OfflineSAC(OnlineFineTuning):
         is given), so a loaded model predicts without allocating the training buffer. :meth:`learn` refills it from
         ``model.dataset`` when that names a dataset (or set ``model.replay_buffer`` by hand first)."""
         cls.refuse_unknown_keywords(kwargs)  # SB3 would set any keyword as an attribute, and train on without it
+        check_saved_model(path)  # SB3: a KeyError for a missing member
         saved = saved_algorithm(path)
         if saved is not None and saved not in [klass.__name__ for klass in cls.__mro__]:
             article = "an" if saved[0] in "AEIOU" else "a"

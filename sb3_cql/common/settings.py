@@ -46,6 +46,18 @@ def check_count(name: str, value: Any, minimum: int) -> None:
         raise SettingError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
+#: The most candidates best-of-N draws at each decision: each is an action (or chunk) valued by the critics, for every
+#: observation of a batch, so that 10**9 of them would ask for tens of GB at the first ``predict``.
+MAX_BEST_OF_N = 4096
+
+
+def check_best_of_n(value: Any) -> None:
+    """:class:`SettingError` unless ``best_of_n`` is an integer in [1, :data:`MAX_BEST_OF_N`]."""
+    if not is_count(value, 1) or value > MAX_BEST_OF_N:
+        raise SettingError(f"best_of_n must be an integer in [1, {MAX_BEST_OF_N}] (the candidate actions drawn and valued "
+                           f"at each decision; more would not fit in memory), got {value!r}")  # fmt: skip
+
+
 def check_fraction(name: str, value: Any, zero: bool = False) -> None:
     """:class:`SettingError` unless the setting ``name`` is a number in (0, 1] (in [0, 1] with ``zero``)."""
     number = isinstance(value, numbers.Real) and not isinstance(value, bool)
