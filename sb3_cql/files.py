@@ -39,7 +39,8 @@ def replace_atomically(
 ) -> None:
     """Make ``path`` the file that ``write(temporary)`` writes, whole or not at all: ``write`` writes a temporary file
     in the same folder (:func:`temporary_path`; missing folders are made), which is flushed to disk, renamed over
-    ``path``, and the folder flushed. Whatever stops it (an error, Ctrl-C), the temporary file is removed.
+    ``path``, and the folder flushed. Whatever stops it (an error, Ctrl-C), the temporary file is removed; an
+    ``OSError`` of the write names ``path`` (not the temporary file) and its cause, unchained.
 
     :param path: the file.
     :param write: writes the file at the path it is given (SB3's ``save`` does, as does :func:`write_atomically`).
@@ -55,8 +56,11 @@ def replace_atomically(
         if before_rename is not None:
             before_rename()
         os.replace(temporary, final)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
+    except BaseException as error:
+        with contextlib.suppress(OSError):  # (a read-only file system refuses even to unlink a missing file)
+            temporary.unlink(missing_ok=True)
+        if isinstance(error, OSError) and error.errno is not None and error.filename in (None, str(temporary)):
+            raise OSError(error.errno, error.strerror or str(error), str(final)) from None  # the file asked for, not ours
         raise
     sync_folder(final.parent)
 

@@ -1,6 +1,4 @@
-"""Online fine-tuning of an offline model: SB3's SAC loop (``collect_rollouts`` in the env, then ``train``) on a
-:class:`~sb3_cql.common.MixedReplayBuffer` that keeps the offline data beside the new transitions, exploring with the
-policy's samples or its deterministic action plus noise, in single actions or open-loop chunks."""
+"""Online fine-tuning of an offline model: SB3's SAC loop on a :class:`~sb3_cql.common.MixedReplayBuffer`."""
 
 from __future__ import annotations
 
@@ -14,14 +12,13 @@ from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 
 from sb3_cql.common.buffers import MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql.common.settings import check_finite_observation
 
 
 class OnlineFineTuning(SAC):
     """What :class:`~sb3_cql.common.OfflineSAC` does with ``online_fraction`` set: :meth:`learn_online` is SAC's
-    ``learn`` (its timesteps are env steps; ``train_freq``, ``gradient_steps`` and ``learning_starts`` are SAC's), on a
-    buffer whose batches draw ``online_fraction`` of their samples from the online transitions. The offline data are
-    the model's (:meth:`~sb3_cql.common.OfflineSAC.load_offline_data`); a saved buffer holds the online transitions
-    only, and the offline data come back from the dataset id."""
+    ``learn`` on a buffer whose batches draw ``online_fraction`` of their samples from the online transitions, the
+    rest from the model's offline data (:meth:`~sb3_cql.common.OfflineSAC.load_offline_data`)."""
 
     online_fraction: float | None
     online_buffer_size: int
@@ -32,8 +29,7 @@ class OnlineFineTuning(SAC):
                      reset_num_timesteps: bool, progress_bar: bool) -> Any:  # fmt: skip
         """SAC's ``learn`` for ``total_timesteps`` env steps on the mixed buffer (the arguments are SB3's)."""
         self._prepare_online_buffer(reset_num_timesteps)
-        # Chunks run open loop from the first step: SB3's learn starts (or continues) with a new one (and resets the
-        # action noise: a HeldActionNoise draws afresh with the chunk).
+        # SB3's learn starts (or continues) with a new chunk, and resets the action noise with it.
         self._rollout_chunks, self._rollout_episode_starts = None, np.ones(self.n_envs, dtype=bool)
         log_interval = 4 if log_interval is None else log_interval
         return SAC.learn(self, total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
@@ -41,12 +37,9 @@ class OnlineFineTuning(SAC):
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        """SAC's exploration (a sample of the policy, plus ``action_noise`` if any), or with ``deterministic_rollouts``
-        TD3's: the deterministic action plus ``action_noise``, clipped to the action space. With action chunks, each
-        chunk (a sample, or the deterministic chunk) runs open loop through the policy's ``state``, a new one when it is
-        used up or an episode ends. The model was trained offline: its first ``learning_starts`` env steps, before any
-        gradient step, act as the rest do (WSRL's warm-up of the model's own rollouts), not with SB3's uniform random
-        actions."""
+        """SAC's exploration, or with ``deterministic_rollouts`` TD3's (the deterministic action plus ``action_noise``,
+        clipped); action chunks run open loop through the policy's ``state``. The first ``learning_starts`` steps act
+        as the rest do (WSRL's warm-up), not at random."""
         chunked = self.action_chunk > 1
         if not self.deterministic_rollouts and not chunked:
             return super()._sample_action(0, action_noise, n_envs)
@@ -65,13 +58,13 @@ class OnlineFineTuning(SAC):
 
     def _store_transition(self, replay_buffer: ReplayBuffer, buffer_action: np.ndarray, new_obs: Any,
                           reward: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]) -> None:  # fmt: skip
+        check_finite_observation(new_obs, "the env's observation")  # at the step it arrives, before any training on it
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
         if self.action_chunk > 1:  # an episode that ended starts the next with a new chunk
             self._rollout_episode_starts = self._rollout_episode_starts | np.asarray(dones, dtype=bool)
 
     def _prepare_online_buffer(self, reset_num_timesteps: bool) -> None:
-        """Make the replay buffer a :class:`MixedReplayBuffer`: the offline data (the buffer's, or reloaded from the
-        dataset id, also under a loaded buffer of online transitions) and an online part of ``online_buffer_size``."""
+        """Make the replay buffer a :class:`MixedReplayBuffer` of the offline data and an online part."""
         mixed = self.replay_buffer if isinstance(self.replay_buffer, MixedReplayBuffer) else None
         if mixed is None:
             offline = self.load_offline_data()
@@ -106,8 +99,8 @@ class OnlineFineTuning(SAC):
         )
 
     def load_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
-        """SB3's. A fine-tuning buffer comes back with its online transitions only: the offline data this model holds
-        stay under it (else :meth:`learn` reloads them from the dataset id)."""
+        """SB3's; the offline data this model holds stay under a loaded buffer of online transitions (else
+        :meth:`learn` reloads them from the dataset id)."""
         offline = self.replay_buffer.offline if isinstance(self.replay_buffer, MixedReplayBuffer) else self.replay_buffer
         super().load_replay_buffer(path, truncate_last_traj)
         loaded = self.replay_buffer

@@ -17,6 +17,8 @@ from stable_baselines3.sac import policies as sac_policies
 from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
 
+from sb3_cql.common.settings import check_finite_observation
+
 __all__ = ["CnnPolicy", "MlpPolicy", "MultiInputPolicy", "NormalizedFlatten", "OfflinePolicy", "SACPolicy", "chunk_space"]
 
 
@@ -163,7 +165,9 @@ class OfflinePolicy(SACPolicy):
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """SB3's ``predict``; with action chunks, the next action of each env's chunk and the state to pass back
-        (the chunks, ``(n_envs, action_chunk, *action_shape)``, and the next action's index in each)."""
+        (the chunks, ``(n_envs, action_chunk, *action_shape)``, and the next action's index in each). An observation
+        with a NaN or an infinity is an :class:`~sb3_cql.common.settings.ObservationError` naming where it is."""
+        check_finite_observation(observation)
         if self.action_chunk == 1:
             return super().predict(observation, state, episode_start, deterministic)
         _, vectorized = self.obs_to_tensor(observation)  # SB3's reading of a batch or one observation

@@ -22,6 +22,23 @@ class KeywordError(SettingError, TypeError):
     ``TypeError`` too, as Python's own for an unexpected keyword."""
 
 
+class ObservationError(SettingError):
+    """An observation the policy cannot act on, or the model train on: a NaN or an infinity (from the env, or a wrapper
+    of it), named with where it is in the observation."""
+
+
+def check_finite_observation(observation: Any, what: str = "the observation") -> None:
+    """:class:`ObservationError` naming the first NaN or infinity of ``observation`` (one or a batch; an array or a dict
+    of them) and its index: torch would fail later on the actor's distribution (``Expected parameter loc ...``)."""
+    for key, value in observation.items() if isinstance(observation, dict) else [(None, observation)]:
+        array = np.asarray(value)
+        if np.issubdtype(array.dtype, np.floating) and not np.isfinite(array).all():
+            index = [int(i) for i in np.argwhere(~np.isfinite(array))[0]]
+            name = what if key is None else f"{what}[{key!r}]"
+            raise ObservationError(f"{name} holds {array[tuple(index)]} at index {index} (shape {list(array.shape)}): every "
+                                   "observation must be finite; check the env and its wrappers")  # fmt: skip
+
+
 def check_keywords(algorithm: str, given: Iterable[str], known: Iterable[str]) -> None:
     """:class:`KeywordError` naming the keywords of ``given`` that are not ``known``, each with the known one it is
     closest to."""
