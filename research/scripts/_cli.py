@@ -6,7 +6,6 @@ The scripts import it as ``_cli`` (``python research/scripts/<name>.py`` puts th
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 from typing import Any
 
@@ -16,7 +15,7 @@ import envs  # noqa: F401  (registers the tasks)
 from sb3_cql import BC, CQL
 
 #: The keywords a script's JSON argument may give: CQL's, less those the scripts set themselves.
-CQL_KEYWORDS = set(inspect.signature(CQL).parameters) - {"policy", "env", "dataset", "seed", "_init_setup_model"}
+CQL_KEYWORDS = CQL.known_keywords() - {"policy", "env", "dataset", "seed", "_init_setup_model"}
 
 
 def positive_int(text: str) -> int:

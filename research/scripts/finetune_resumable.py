@@ -30,8 +30,9 @@ def checkpoints(segment: Path) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python research/scripts/finetune_resumable.py", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("model", type=Path)
     parser.add_argument("out", type=Path)
     parser.add_argument("--algo", default="iql")
@@ -41,7 +42,7 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=100_000, help="a multiple of --save-freq")
     parser.add_argument("--save-freq", type=int, default=10_000)
     parser.add_argument("--eval-freq", type=int, default=10_000)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.steps % args.save_freq:
         parser.error("--steps must be a multiple of --save-freq: a segment's steps are counted by its checkpoints")
     while True:
