@@ -33,10 +33,7 @@ def connect(address: str) -> Any:
     except ImportError:
         raise ClusterError(f"--ray needs Ray, which is not installed: {INSTALL}") from None
     if not ray.is_initialized():
-        unreachable = _unreachable(address)
-        if unreachable is not None:  # Ray would wait for minutes
-            raise ClusterError(f"cannot connect to the Ray cluster at {address}: {unreachable}; start it (ray start "
-                               "--head) or give the address that ray status prints")  # fmt: skip
+        check_address(address)
         try:
             ray.init(address=address, logging_level="ERROR", log_to_driver=False, configure_logging=True)
         except Exception as error:  # Ray raises ConnectionError, ValueError or its own errors
@@ -44,20 +41,54 @@ def connect(address: str) -> Any:
     return ray
 
 
+def check_address(address: str) -> None:
+    """A :class:`ClusterError` within seconds where no Ray cluster answers at ``address`` (:func:`_unreachable`):
+    ``ray.init`` would wait for minutes."""
+    unreachable = _unreachable(address)
+    if unreachable is not None:
+        raise ClusterError(f"cannot connect to the Ray cluster at {address}: {unreachable}; start it (ray start --head) "
+                           "or give the address that ray status prints")  # fmt: skip
+
+
 def _unreachable(address: str) -> str | None:
-    """Why nothing can be connected to at a ``host:port`` or ``ray://host:port`` address, found within
-    :data:`PROBE_TIMEOUT_S` seconds; ``None`` where something answers, or for an address Ray resolves itself
-    (``auto``)."""
+    """Why no Ray cluster can be connected to at a ``host:port`` or ``ray://host:port`` address, found within
+    :data:`PROBE_TIMEOUT_S` seconds: nothing answers there, or something that is not Ray does (a web server, Ray's
+    dashboard: ``ray.init`` would wait on it for minutes). Ray's GCS and client server speak gRPC, HTTP/2: the probe
+    sends HTTP/2's connection preface and an empty SETTINGS frame, which a gRPC server answers with a SETTINGS frame of
+    its own and a web server with an ``HTTP/1.x`` error. ``None`` where it answers as gRPC does, or for an address Ray
+    resolves itself (``auto``), or with TLS (``RAY_USE_TLS``), where the probe cannot look inside."""
+    import os
     import socket
 
     host, separator, port = address.removeprefix("ray://").rpartition(":")
     if not separator or not port.isdigit() or not host:
         return None
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_TIMEOUT_S).close()
+        connection = socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_TIMEOUT_S)
     except OSError as error:
         return f"nothing answers at {host}:{port} ({error.strerror or error})"
-    return None
+    if os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true"):
+        connection.close()
+        return None
+    with connection:
+        try:
+            connection.sendall(HTTP2_PREFACE)
+            answer = b""
+            while len(answer) < 9 and (more := connection.recv(9 - len(answer))):
+                answer += more
+        except OSError as error:  # a timeout, a reset
+            answer = f"({error.strerror or type(error).__name__})".encode()
+    if len(answer) == 9 and answer[3] == HTTP2_SETTINGS:
+        return None
+    what = "a web server" if answer.startswith((b"HTTP/", b"<")) else "something that does not speak gRPC"
+    return (f"{what} answers at {host}:{port}, not Ray (the address of its GCS, 6379 by default, or ray:// and its "
+            "client server's, 10001; not its dashboard's)")  # fmt: skip
+
+
+#: HTTP/2's client connection preface and an empty SETTINGS frame (RFC 9113, 3.4 and 6.5).
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+#: The type of HTTP/2's SETTINGS frame, the first a server sends.
+HTTP2_SETTINGS = 4
 
 
 def cluster_cpus(ray: Any) -> int:

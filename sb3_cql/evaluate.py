@@ -37,6 +37,7 @@ import os
 import re
 import sys
 import zipfile
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -296,6 +297,13 @@ def load_model(parser: argparse.ArgumentParser, path: str, algo: str, env_id: st
     problem = saved_model_problem(found) if zipfile.is_zipfile(found) else None  # a zip without a model's members
     if problem is not None:
         fail(parser, f"cannot load {found} as a {algo} model: {problem}")
+    from sb3_cql.common.offline import OfflineSAC, saved_algorithm
+
+    saved = saved_algorithm(found)  # our algorithms record theirs: another one's model is named as such
+    if issubclass(ALGOS[algo], OfflineSAC) and saved is not None and saved not in [c.__name__ for c in ALGOS[algo].__mro__]:
+        name = next((key for key, klass in ALGOS.items() if klass.__name__ == saved), saved.lower())
+        fail(parser, f"cannot load {found} as a {algo} model: it holds {'an' if saved[0] in 'AEIOU' else 'a'} {saved} model; "
+                     f"give --algo {name}")  # fmt: skip
     try:
         return load_policy(str(found), algo, env_id)
     except Exception as error:  # an unreadable file: not a zip, truncated, another algorithm's model, ...
@@ -336,6 +344,10 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"-n needs at least 1 episode, got {n_episodes}")
     if args.seed < 0:
         fail(parser, f"--seed must be >= 0 (numpy seeds), got {args.seed}")
+    for option, values in (("--env", args.env), ("--seeds", seeds or [])):  # a repeat would count an episode twice
+        repeated = next((value for value, count in Counter(values).items() if count > 1), None)
+        if repeated is not None:
+            fail(parser, f"{option}: {repeated} is given more than once (ranges included): give each once")
     try:
         check_keywords(args.env_kwargs)
     except TypeError as error:

@@ -9,6 +9,7 @@ imported by the data package and the commands before torch.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import secrets
@@ -81,3 +82,23 @@ def write_json(path: str | os.PathLike, data: Any) -> None:
     """Write ``data`` as JSON to ``path`` through :func:`write_atomically`; NaN and infinities are refused
     (``ValueError``): they are not JSON."""
     write_atomically(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+#: The causes of a write that fails for want of room (a full disk, a quota, a file size limit), and of one that fails
+#: because the place cannot be written (a read-only file system, permissions).
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+NOT_WRITABLE = (errno.EROFS, errno.EACCES, errno.EPERM)
+
+
+def os_error_line(error: OSError, where: str | os.PathLike | None = None, folder_option: str = "") -> str:
+    """One line for an ``OSError`` of a command: the file (``where`` when the error names none), the cause and, for a
+    disk without room or a place that cannot be written, what to do (``folder_option``: the option that gives the
+    folder, e.g. ``-f``)."""
+    name = error.filename if error.filename is not None else where
+    cause = error.strerror or str(error) or type(error).__name__
+    if error.errno in NO_ROOM:
+        return f"cannot write {name} ({cause}): free some disk space, or write to another disk, and run the command again"
+    if error.errno in NOT_WRITABLE:
+        where_to = f"give {folder_option} a folder" if folder_option else "write to a folder"
+        return f"cannot write {name} ({cause}): {where_to} this user may write in"
+    return f"{name}: {cause}" if name is not None else cause

@@ -2,14 +2,19 @@
 that says what to type instead (status 2 for a command line), with nothing written and nothing left that blocks the
 corrected command; or, where the input is good, done."""
 
+import contextlib
+import http.server
 import json
 import os
 import re
 import signal
 import socket
+import subprocess
 import sys
 import threading
+import time
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import gymnasium as gym
@@ -24,9 +29,10 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.envs import FakeImageEnv
 
 from envs.config import ConfigError
-from sb3_cql import BC, CQL
-from sb3_cql.common import SettingError
-from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, load_dataset
+from sb3_cql import BC, CQL, IQL
+from sb3_cql.common import KeywordError, SettingError
+from sb3_cql.common.settings import ObservationError
+from sb3_cql.data import CollectionSpec, DatasetError, collect_dataset, collection, load_dataset
 from sb3_cql.data.__main__ import main as data_cli
 from sb3_cql.data.ids import dataset_path, partial_path
 from sb3_cql.data.store import DatasetFiles
@@ -436,3 +442,238 @@ def test_a_frozen_target_and_images_held_as_the_policy_sees_them_are_accepted(tm
                      policy_kwargs={"net_arch": [8]})  # fmt: skip
         assert model.replay_buffer.size() == 5
         np.testing.assert_array_equal(model.replay_buffer.observations[:5, 0], observations[:-1])
+
+
+# What an id, a list or a keyword says is what is done -------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def small_disk(path: Path, pages: int, read_only: bool = False) -> Iterator[Path]:
+    """A tmpfs of ``pages`` pages of 4 kB at ``path`` (root only: the test is skipped elsewhere)."""
+    path.mkdir(parents=True)
+    options = f"size={pages * 4096}" + (",ro" if read_only else "")
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(path)], capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here (needs root): {mounted.stderr.decode().strip()}")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=False)
+
+
+@pytest.fixture(scope="module")
+def pendulum_models(shared) -> dict[str, Path]:
+    """Untrained IQL and BC models of Pendulum-v1 (tiny networks), saved."""
+    env = gym.make("Pendulum-v1")
+    for name, algo in (("iql", IQL), ("bc", BC)):
+        algo("MlpPolicy", env, dataset=random_buffer(env), batch_size=8, policy_kwargs=TINY, seed=0).save(shared / name)
+    return {"iql": shared / "iql.zip", "bc": shared / "bc.zip"}
+
+
+def test_a_standard_id_holds_its_own_task_s_data_and_names_a_partial_collection(datasets, monkeypatch, capsys):
+    standard = "sb3cql/Panda-v0/pid-v0"
+    code, line = one_line(data_cli, ["collect", "--env", "PandaForce-v0", "--episodes", "1", "--dataset-id", standard], capsys)
+    assert code == 2 and line == (
+        "python -m sb3_cql.data: error: sb3cql/Panda-v0/pid-v0 is a standard dataset id, defined as 10000 episodes or its "
+        "first ones with env_id 'Panda-v0'; this collection has env_id 'PandaForce-v0': give it an id of its own, e.g. "
+        "--dataset-id sb3cql/PandaForce-v0/pid-v0"
+    )
+    code, line = one_line(data_cli, ["collect", "--action-mode", "delta", "--episodes", "1", "--dataset-id", standard], capsys)
+    assert code == 2 and "this collection has env_kwargs {'action_mode': 'delta'}: give it an id of its own, e.g. " \
+                        "--dataset-id sb3cql/Panda-v0/pid-delta-v0" in line  # fmt: skip
+    assert not dataset_path(standard).exists() and not partial_path(standard).exists()
+    with monkeypatch.context() as patch:  # another task's data under the id, as a collection before this check wrote them
+        patch.setattr(collection, "_check_standard", lambda spec, dataset_id: None)
+        collect_dataset(CollectionSpec(env_id="PandaForce-v0", n_episodes=1), standard, progress_bar=False)
+    with pytest.raises(DatasetError) as refused:
+        IQL("MlpPolicy", gym.make("Panda-v0"), dataset=standard, policy_kwargs=TINY)
+    assert str(refused.value) == (
+        f"sb3cql/Panda-v0/pid-v0 is a standard dataset id, defined as 10000 episodes or its first ones with env_id "
+        f"'Panda-v0'; the dataset at {dataset_path(standard)} has env_id 'PandaForce-v0': move it to an id of its own "
+        "(python -m sb3_cql.data info sb3cql/Panda-v0/pid-v0 shows what it holds), then python -m sb3_cql.data collect "
+        "--env Panda-v0 --policy pid --episodes 10000 --seed 0 --dataset-id sb3cql/Panda-v0/pid-v0 collects "
+        "sb3cql/Panda-v0/pid-v0"
+    )
+    data_cli(["collect", "--policy", "pid-regrasp", "--episodes", "1"])  # the first episode of a standard id's 10,000
+    capsys.readouterr()
+    model = IQL("MlpPolicy", "Panda-v0", dataset="sb3cql/Panda-v0/pid-regrasp-v0", batch_size=8, policy_kwargs=TINY)
+    assert capsys.readouterr().err.splitlines() == [
+        "sb3cql/Panda-v0/pid-regrasp-v0 holds 1 of the 10000 episodes its id defines (their first ones): using these; "
+        "python -m sb3_cql.data collect --env Panda-v0 --policy pid-regrasp --episodes 10000 --seed 0 --dataset-id "
+        "sb3cql/Panda-v0/pid-regrasp-v0 --overwrite collects them all"
+    ]
+    assert model.replay_buffer.size() == load_dataset("sb3cql/Panda-v0/pid-regrasp-v0").total_steps
+
+
+def test_lists_that_repeat_a_value_are_refused_naming_the_option_and_the_value(datasets, tmp_path, capsys):
+    results = tmp_path / "results"
+    for args, message in (
+        (["--algos", "cql", "--seeds", "5", "5", "--workers", "2"], "--seeds 5 5: 5 is given more than once; give each once"),
+        (["--algos", "pid", "pid", "--tasks", "Panda-v0", "Panda-v0"], "--algos pid pid: pid is given more than once"),
+        (["--algos", "pid", "--tasks", "Panda-v0", "PandaForce-v0", "Panda-v0"], "--tasks Panda-v0 PandaForce-v0 Panda-v0: "
+                                                                                 "Panda-v0 is given more than once"),
+    ):  # fmt: skip
+        code, line = one_line(benchmark_cli, [*args, "--results-dir", str(results)], capsys)
+        assert code == 2 and line.startswith(f"python -m sb3_cql.protocol: error: {message}"), line
+        assert not results.exists()
+    code, line = one_line(evaluate_cli, ["pid", "--env", "Panda-v0", "--seeds", "1-5", "3"], capsys)
+    assert code == 2 and line == ("python -m sb3_cql.evaluate: error: --seeds: 3 is given more than once (ranges included): "
+                                  "give each once")  # fmt: skip
+    code, line = one_line(evaluate_cli, ["pid", "--env", "Panda-v0", "Panda-v0", "-n", "1"], capsys)
+    assert code == 2 and line.startswith("python -m sb3_cql.evaluate: error: --env: Panda-v0 is given more than once")
+    code, line = one_line(data_cli, ["mix", "--dataset-id", "sb3cql/Panda-v0/m-v0", "a-v0", "b-v0", "a-v0"], capsys)
+    assert code == 2 and line == ("python -m sb3_cql.data: error: a-v0 given more than once: give each dataset to mix "
+                                  "once")  # fmt: skip
+    code, line = one_line(data_cli, ["mix", "--dataset-id", "sb3cql/Panda-v0/noisy-v0", "a-v0", "b-v0"], capsys)
+    assert code == 2 and "sb3cql/Panda-v0/noisy-v0 is a standard dataset id" in line
+    assert not datasets.exists() or not any(datasets.rglob("*-v0"))
+
+
+class QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args) -> None:  # the test's stderr is the command's
+        pass
+
+
+def test_a_web_server_at_the_ray_address_is_one_line_within_seconds_and_leaves_nothing(datasets, tmp_path, capsys):
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), QuietHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    address = f"127.0.0.1:{server.server_address[1]}"
+    try:
+        start = time.monotonic()
+        code, line = one_line(data_cli, ["collect", "--episodes", "1", "--ray", address], capsys)
+        assert time.monotonic() - start < 10
+        assert code == 2 and line == (
+            f"python -m sb3_cql.data: error: cannot connect to the Ray cluster at {address}: a web server answers at "
+            f"{address}, not Ray (the address of its GCS, 6379 by default, or ray:// and its client server's, 10001; not "
+            "its dashboard's); start it (ray start --head) or give the address that ray status prints"
+        )
+        assert not datasets.exists() or not any(datasets.rglob("*"))  # no lock file, no partial collection
+        results = tmp_path / "results"
+        code, line = one_line(benchmark_cli, ["--algos", "pid", "--seeds", "1", "--ray", address, "--results-dir",
+                                              str(results)], capsys)  # fmt: skip
+        assert code == 2 and f"a web server answers at {address}, not Ray" in line and not results.exists()
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_keywords_load_does_not_take_are_refused_naming_the_closest(model, pendulum_models):
+    env = gym.make("Panda-v0", action_mode="delta")
+    for load, message in (
+        (lambda: CQL.load(model, env=env, online_fracton=0.5), "CQL got unexpected keyword arguments: online_fracton (did "
+                                                               "you mean online_fraction?)"),
+        (lambda: IQL.load(pendulum_models["iql"], expectle=0.95), "IQL got unexpected keyword arguments: expectle (did you "
+                                                                  "mean expectile?)"),
+        (lambda: CQL.load(model, expectile=0.9), "CQL got unexpected keyword arguments: expectile"),
+        (lambda: BC.load(pendulum_models["bc"], best_of_n=4), "BC got unexpected keyword arguments: best_of_n"),
+    ):  # fmt: skip
+        with pytest.raises(KeywordError) as refused:
+            load()
+        assert str(refused.value) == message and "\n" not in str(refused.value)
+
+
+def test_settings_that_would_fail_later_are_refused_or_trained_with(pendulum_models, tmp_path):
+    env = gym.make("Pendulum-v1")
+    message = re.escape("best_of_n must be an integer in [1, 4096] (the candidate actions drawn and valued at each "
+                        "decision; more would not fit in memory), got 1000000000")  # fmt: skip
+    with pytest.raises(SettingError, match=f"^{message}$"):
+        IQL("MlpPolicy", env, dataset=random_buffer(env), policy_kwargs=TINY, best_of_n=10**9)
+    with pytest.raises(SettingError, match=f"^{message}$"):
+        IQL.load(pendulum_models["iql"], best_of_n=10**9)
+    for options in ({"n_steps": 3}, {"action_chunk": 2}):  # gamma 1: the n-step sums need no 1 / (1 - gamma)
+        cql = CQL("MlpPolicy", env, dataset=random_buffer(env, 64), gamma=1.0, batch_size=8, policy_kwargs=TINY, **options)
+        cql.learn(2)
+        assert cql._n_updates == 2
+    with pytest.raises(SettingError, match="^reward_bias with n_steps > 1 needs gamma < 1"):
+        CQL("MlpPolicy", env, dataset=random_buffer(env), gamma=1.0, n_steps=3, reward_bias=-1.0, policy_kwargs=TINY)
+
+
+def test_datasets_that_are_no_data_are_one_line(datasets):
+    env = gym.make("Pendulum-v1")
+    with pytest.raises(DatasetError, match=r"^dataset: the replay buffer holds no transitions$"):
+        CQL("MlpPolicy", env, dataset=ReplayBuffer(8, env.observation_space, env.action_space), policy_kwargs=TINY)
+    for dataset, name in ((np.zeros((10, 3)), "ndarray"), (42, "int")):
+        with pytest.raises(DatasetError) as refused:
+            CQL("MlpPolicy", env, dataset=dataset, policy_kwargs=TINY)
+        assert str(refused.value) == f"dataset must be a Minari dataset, its id or a filled SB3 ReplayBuffer, got {name}"
+    assert not datasets.exists()
+
+
+def without_member(model: Path, member: str, target: Path) -> Path:
+    """A copy of the model file ``model`` without its ``member``."""
+    with zipfile.ZipFile(model) as source, zipfile.ZipFile(target, "w") as copy:
+        for name in source.namelist():
+            if name != member:
+                copy.writestr(name, source.read(name))
+    return target
+
+
+def test_model_files_that_cannot_be_loaded_or_written_are_one_line(model, pendulum_models, tmp_path, capsys):
+    stripped = without_member(model, "policy.pth", tmp_path / "no_policy.zip")
+    with pytest.raises(ValueError) as refused:
+        CQL.load(stripped)
+    assert str(refused.value) == f"cannot load {stripped}: it holds no policy parameters (no policy.pth member)"
+    iql = str(pendulum_models["iql"])
+    code, line = one_line(evaluate_cli, [iql, "--algo", "cql", "--env", "Panda-v0", "-n", "1"], capsys)
+    assert code == 2 and line == (f"python -m sb3_cql.evaluate: error: cannot load {iql} as a cql model: it holds an IQL "
+                                  "model; give --algo iql")  # fmt: skip
+    cql = CQL.load(model)
+    with small_disk(tmp_path / "read_only", 4, read_only=True) as folder, pytest.raises(OSError) as refused:
+        cql.save(folder / "model")
+    assert str(refused.value) == f"[Errno 30] Read-only file system: '{folder / 'model.zip'}'"
+    assert refused.value.__cause__ is None and refused.value.__suppress_context__
+
+
+class NaNAfterReset(gym.Wrapper):
+    """Observations with a NaN at index 1 after the first one."""
+
+    def step(self, action):
+        observation, *rest = self.env.step(action)
+        observation = observation.copy()
+        observation[1] = np.nan
+        return observation, *rest
+
+
+def test_a_non_finite_observation_is_named_at_the_step_it_arrives():
+    env = gym.make("Pendulum-v1")
+    cql = CQL("MlpPolicy", env, dataset=random_buffer(env), batch_size=8, policy_kwargs=TINY)
+    with pytest.raises(ObservationError) as refused:
+        cql.predict(np.array([1.0, np.nan, 0.0], dtype=np.float32))
+    assert str(refused.value) == ("the observation holds nan at index [1] (shape [3]): every observation must be finite; "
+                                  "check the env and its wrappers")  # fmt: skip
+    finetuning = CQL("MlpPolicy", NaNAfterReset(env), dataset=random_buffer(env), batch_size=8, policy_kwargs=TINY,
+                     online_fraction=0.5)  # fmt: skip
+    with pytest.raises(ObservationError, match=re.escape("the env's observation holds nan at index [0, 1] (shape [1, 3])")):
+        finetuning.learn(4)
+    assert finetuning._n_updates == 0
+
+
+# The zoo's files and models --------------------------------------------------------------------------------------
+
+
+def test_a_zoo_run_on_a_full_disk_or_a_read_only_folder_is_one_line(delta_dataset, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MINARI_DATASETS_PATH", delta_dataset)
+    argv = [*ZOO_CQL, "--eval-freq", "2", "--eval-episodes", "1", "--hyperparams", TINY_ZOO,
+            "dataset:'sb3cql/Panda-v0/tiny-delta-v0'", "batch_size:8"]  # fmt: skip
+    with small_disk(tmp_path / "full", 16) as disk:
+        (disk / "filler").write_bytes(bytes(12 * 4096))  # a page for each of the run's 4 small files, none for more
+        monkeypatch.chdir(disk)
+        code, line = zoo_one_line(argv, monkeypatch, capsys)
+        assert code == 2 and line == (
+            f"python -m rl_zoo3.train: error: cannot write {Path('logs/cql/Panda-v0_1')} (No space left on device): free "
+            "some disk space, or write to another disk, and run the command again"
+        )
+        assert run_folders(disk) == [] and not list(disk.rglob("evaluations.npz"))
+    with small_disk(tmp_path / "read_only", 4, read_only=True) as folder:
+        monkeypatch.chdir(folder)
+        code, line = zoo_one_line(argv, monkeypatch, capsys)
+        assert code == 2 and line == ("python -m rl_zoo3.train: error: cannot write logs (Read-only file system): give -f a "
+                                      "folder this user may write in")  # fmt: skip
+
+
+def test_a_zoo_run_from_another_algorithm_s_model_is_one_line_without_a_run_folder(pendulum_models, monkeypatch, capsys):
+    iql = pendulum_models["iql"]
+    code, line = zoo_one_line([*ZOO_CQL, "-i", str(iql), "--hyperparams", TINY_ZOO], monkeypatch, capsys)
+    assert code == 2 and line == (f"python -m rl_zoo3.train: error: {iql} holds an IQL model: load it with IQL.load (in "
+                                  "the zoo, --algo iql)")  # fmt: skip
+    assert run_folders(Path.cwd()) == []

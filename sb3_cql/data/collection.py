@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 import shutil
 import sys
@@ -29,8 +30,8 @@ from minari import MinariDataset
 from minari.data_collector import EpisodeBuffer
 from tqdm import tqdm
 
-from sb3_cql.data import ids
-from sb3_cql.data.assembly import assemble, collection_metadata, mix_datasets
+from sb3_cql.data import assembly, ids
+from sb3_cql.data.assembly import assemble, collection_metadata
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.estimates import (
     check_space,
@@ -181,16 +182,17 @@ def collect_dataset(
         (``auto``, ``host:port`` or ``ray://host:port``) instead of ``workers`` local processes: the same dataset,
         written by this process (:mod:`sb3_cql.cluster`).
     """
-    policy_name = spec.policy if spec.policy in POLICIES else Path(spec.policy).stem
-    in_thousands = spec.n_episodes >= 1000 and spec.n_episodes % 1000 == 0
-    dataset_id = dataset_id or ids.dataset_id(spec.env_id, policy_name, spec.action_mode,
-                                              episodes=spec.n_episodes if in_thousands else None)  # fmt: skip
+    dataset_id = dataset_id or default_dataset_id(spec)
     _check_standard(spec, dataset_id)
     write_every = WRITE_EVERY if write_every is None else write_every
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     if write_every < 1:
         raise ValueError(f"write_every must be >= 1, got {write_every}")
+    if ray_address is not None:  # a cluster out of reach is one line before anything is written (the lock file too)
+        from sb3_cql.cluster import check_address
+
+        check_address(ray_address)
     files = DatasetFiles(dataset_id)
     with files.locked():
         files.recover()
@@ -337,19 +339,35 @@ def standard_collection(dataset_id: str) -> CollectionSpec | None:
 
 def _check_standard(spec: CollectionSpec, dataset_id: str) -> None:
     """A :class:`DatasetError` if ``dataset_id`` is a standard id (:func:`standard_collection`) and ``spec`` is not its
-    collection, or the first episodes of it: what trains on the id would get other data without a word."""
-    standard = standard_collection(dataset_id)
-    if standard is None:
+    collection, or the first episodes of it (:func:`~sb3_cql.data.ids.standard_mismatch`: every field the id
+    defines): what trains on the id would get other data without a word."""
+    fields = json.loads(spec.to_json())
+    mismatch = ids.standard_mismatch(dataset_id, fields, "this collection")
+    if mismatch is None:
         return
-    fields = ("policy", "seed", "noise", "env_kwargs", "algo")
-    differs = [name for name in fields if getattr(spec, name) != getattr(standard, name)]
-    if spec.n_episodes > standard.n_episodes:
-        differs.append("n_episodes")
-    if differs:
-        given = ", ".join(f"{name} {getattr(spec, name)!r}" for name in differs)
-        defined = ", ".join(f"{name} {getattr(standard, name)!r}" for name in differs)
+    own = default_dataset_id(spec)  # the spec's own standard id, where it is one; else a custom one
+    if own == dataset_id or ids.standard_mismatch(own, fields, "") is not None:
         own = dataset_id.rsplit("-v", 1)[0] + "-custom-v0"
-        raise DatasetError(
-            f"{dataset_id} is a standard dataset id, defined as {standard.n_episodes} episodes or its first ones with "
-            f"{defined}; this collection has {given}: give it an id of its own, e.g. --dataset-id {own}"
-        )
+    raise DatasetError(f"{mismatch}: give it an id of its own, e.g. --dataset-id {own}")
+
+
+def default_dataset_id(spec: CollectionSpec) -> str:
+    """The id a collection of ``spec`` gets without one: ``sb3cql/<env>/<policy>[-delta][-<N>k]-v0``, ``-<N>k`` for a
+    number of episodes that is a multiple of 1,000 other than 10,000."""
+    policy_name = spec.policy if spec.policy in POLICIES else Path(spec.policy).stem
+    in_thousands = spec.n_episodes >= 1000 and spec.n_episodes % 1000 == 0
+    return ids.dataset_id(spec.env_id, policy_name, spec.action_mode, episodes=spec.n_episodes if in_thousands else None)
+
+
+def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False) -> MinariDataset:
+    """Combine the datasets ``source_ids`` (same env and spaces, each once) into a new dataset ``dataset_id``, not a
+    standard id (whose data are its collection's), written atomically like :func:`collect_dataset`; its metadata lists
+    them under ``combined_datasets`` (:func:`sb3_cql.data.assembly.mix_datasets`)."""
+    repeated = sorted({source for source in source_ids if source_ids.count(source) > 1})
+    if repeated:
+        raise DatasetError(f"{', '.join(repeated)} given more than once: give each dataset to mix once")
+    if standard_collection(dataset_id) is not None:
+        raise DatasetError(f"{dataset_id} is a standard dataset id (the data of one collection, python -m sb3_cql.data "
+                           f"collect): give the mix an id of its own, e.g. --dataset-id "
+                           f"{dataset_id.rsplit('/', 1)[0]}/mixed-v0")  # fmt: skip
+    return assembly.mix_datasets(source_ids, dataset_id, overwrite)

@@ -132,6 +132,27 @@ def standard_collection_fields(dataset_id: str) -> dict[str, Any] | None:
             "env_kwargs": env_kwargs, "algo": None}  # fmt: skip
 
 
+def standard_mismatch(dataset_id: str, fields: dict[str, Any], holder: str) -> str | None:
+    """Why the collection ``fields`` (as :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them) cannot be the data of
+    ``dataset_id``, a standard id (:func:`standard_collection_fields`) that defines others: every field the id defines
+    but the episodes must be its own (the task, the policy, the action mode, the seed, the noise, the physics, the
+    algorithm: the fields compared are those :func:`standard_collection_fields` returns, so a field added there is
+    compared too), and the episodes no more than its own. ``None`` where they agree, or for an id that is not a standard
+    one. ``holder`` names what holds ``fields``: ``"this collection"``, ``"the dataset at PATH"``."""
+    standard = standard_collection_fields(dataset_id)
+    if standard is None:
+        return None
+    differs = [name for name in standard if name != "n_episodes" and fields.get(name) != standard[name]]
+    if fields.get("n_episodes", 0) > standard["n_episodes"]:
+        differs.append("n_episodes")
+    if not differs:
+        return None
+    given = ", ".join(f"{name} {fields.get(name)!r}" for name in differs)
+    defined = ", ".join(f"{name} {standard[name]!r}" for name in differs)
+    return (f"{dataset_id} is a standard dataset id, defined as {standard['n_episodes']} episodes or its first ones "
+            f"with {defined}; {holder} has {given}")  # fmt: skip
+
+
 def default_noise(policy: str) -> float:
     """The noise (std in rad) of a collection of ``policy`` that gives none: :data:`DEFAULT_NOISE` for the noisy
     policies, 0 for the others."""

@@ -5,6 +5,8 @@ NaN or an infinity, actions outside [-1, 1] in a buffer of the user's, no transi
 
 from __future__ import annotations
 
+import json
+import sys
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -37,10 +39,39 @@ def resolve_dataset(dataset: Any) -> MinariDataset | ReplayBuffer:
         raise DatasetError(f"dataset must be a Minari dataset, its id or a filled SB3 ReplayBuffer, got "
                            f"{type(dataset).__name__}")  # fmt: skip
     if ids.dataset_exists(dataset):
-        return load_dataset(dataset)
-    from sb3_cql.data.collection import ensure_dataset  # the tasks load only to collect a standard dataset
+        data = load_dataset(dataset)
+    else:
+        from sb3_cql.data.collection import ensure_dataset  # the tasks load only to collect a standard dataset
 
-    return ensure_dataset(dataset)
+        data = ensure_dataset(dataset)
+    check_standard_data(dataset, data)
+    return data
+
+
+def check_standard_data(dataset_id: str, data: MinariDataset) -> None:
+    """The data under a standard id are its collection's (:func:`~sb3_cql.data.ids.standard_mismatch`): others (another
+    task, policy, action mode, seed, noise or physics; a mix, or data written by hand, which record no collection) are
+    one :class:`DatasetError`. Fewer episodes than the id defines (its first ones) are one line on stderr, with the
+    command that collects them all: a standard id names its whole collection."""
+    standard = ids.standard_collection_fields(dataset_id) if dataset_id.startswith(f"{ids.NAMESPACE}/") else None
+    if standard is None:  # (whether an id is a standard one is read from the tasks: only for this namespace's ids)
+        return
+    where = f"the dataset at {ids.dataset_path(dataset_id)}"
+    try:
+        fields = json.loads(data.storage.metadata["collection"])
+    except (KeyError, TypeError, ValueError):
+        fields = None
+    if isinstance(fields, dict):
+        mismatch = ids.standard_mismatch(dataset_id, fields, where)
+    else:
+        mismatch = f"{dataset_id} is a standard dataset id and {where} records no collection (a mix, or data written by hand)"
+    complete = ids.collect_command(standard, dataset_id)
+    if mismatch is not None:
+        raise DatasetError(f"{mismatch}: move it to an id of its own (python -m sb3_cql.data info {dataset_id} shows what "
+                           f"it holds), then {complete} collects {dataset_id}")  # fmt: skip
+    if data.total_episodes < standard["n_episodes"]:
+        print(f"{dataset_id} holds {data.total_episodes} of the {standard['n_episodes']} episodes its id defines (their "
+              f"first ones): using these; {complete} --overwrite collects them all", file=sys.stderr, flush=True)  # fmt: skip
 
 
 def fill_replay_buffer(

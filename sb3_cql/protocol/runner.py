@@ -10,6 +10,7 @@ import shlex
 import subprocess
 import sys
 import time
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -163,6 +164,12 @@ class Protocol:
                 raise ProtocolError(f"{option} must be an integer >= 1, got {value!r}")
         if not self.seeds:
             raise ProtocolError("--seeds: give at least one seed")
+        lists = {"--algos": self.algos, "--seeds": self.seeds, "--tasks": self.tasks, "--finetune": self.finetune}
+        for option, values in lists.items():  # a repeat would run a unit twice, or two runs into one folder
+            repeated = next((value for value, count in Counter(values).items() if count > 1), None)
+            if repeated is not None:
+                raise ProtocolError(f"{option} {' '.join(map(str, values))}: {repeated} is given more than once; give each "
+                                    "once")  # fmt: skip
         for seed in self.seeds:
             if not isinstance(seed, int) or seed < 0:
                 raise ProtocolError(f"--seeds must be integers >= 0, got {seed!r}")

@@ -23,6 +23,7 @@ import envs  # noqa: F401  (registers the tasks)
 from sb3_cql.bc import BC
 from sb3_cql.common.atomic import saved_model_problem, with_atomic_saves
 from sb3_cql.cql import CQL, CalQL
+from sb3_cql.files import os_error_line
 from sb3_cql.iql import IQL
 from sb3_cql.processes import INTERRUPTED_STATUS, interrupts_noted
 from sb3_cql.zoo import errors, search_space
@@ -130,6 +131,13 @@ class ExperimentManager(exp_manager.ExperimentManager):
         if noted() == signal.SIGINT and model.num_timesteps == start:  # before the first step: no model to save
             self._end_without_model(KeyboardInterrupt())
 
+    def save_trained_model(self, model: Any) -> None:
+        try:
+            super().save_trained_model(model)
+        except OSError as error:  # a full disk: the save leaves the file before it (atomic saves), and one line
+            self._end_without_model(error)
+            raise
+
     def _end_without_model(self, error: BaseException) -> None:
         """Remove the run's folder if it holds no model; end on one line for Ctrl-C (130) or an input error (2)."""
         folder = self.run_folder
@@ -140,8 +148,8 @@ class ExperimentManager(exp_manager.ExperimentManager):
                 print(f"interrupted before training started: no model saved{f', {folder} removed' if removed else ''}",
                       file=sys.stderr)  # fmt: skip
             raise SystemExit(INTERRUPTED_STATUS) from None
-        if isinstance(error, errors.INPUT_ERRORS):
-            errors.fail(str(error))
+        if isinstance(error, (*errors.INPUT_ERRORS, OSError)):  # OSError: a disk without room, a read-only folder
+            errors.fail(os_error_line(error, folder, "-f") if isinstance(error, OSError) else str(error))
 
 
 #: Our algorithms by ``--algo`` name.
