@@ -1,11 +1,5 @@
-"""Every physical parameter and threshold of the grasping tasks, in one place.
-
-:class:`GraspConfig` is the single home of the simulation constants (Table A.2 of the thesis for
-gravity, mass and friction). Every field is also a keyword of the environments, so
-``gymnasium.make("Panda-v0", object_mass=0.5)`` changes the object's mass and an unknown keyword
-raises ``TypeError``; a value that is not a finite number, or is out of its field's range, raises
-:class:`ConfigError` (a ``ValueError``) naming it, before anything is simulated. Units: metres, kilograms,
-seconds, newtons, radians.
+"""Every physical parameter and threshold of the grasping tasks, in one place (:class:`GraspConfig`). Units: metres,
+kilograms, seconds, newtons, radians.
 """
 
 from __future__ import annotations
@@ -21,12 +15,10 @@ Range = tuple[float, float]
 
 
 class ConfigError(ValueError):
-    """A physical parameter or threshold outside what the simulation can use (not a finite number, or out of its
-    range): the message names the keyword, the value and what it must be."""
+    """A physical parameter or threshold that is not a finite number, or is out of its range."""
 
 
-#: The bounds of the fields that have one: ``(lowest, whether the lowest itself is allowed)``; every number of every
-#: field must be finite.
+#: The bounds of the fields that have one: ``(lowest, whether the lowest itself is allowed)``.
 FIELD_BOUNDS = {
     "sim_timestep": (0.0, False), "substeps": (1, True), "arm_motor_force": (0.0, True),
     "finger_motor_force": (0.0, True), "finger_contact_stiffness": (0.0, False), "finger_contact_damping": (0.0, True),
@@ -44,8 +36,7 @@ def _is_number(value: Any) -> bool:
 
 
 def _check_field(name: str, value: Any) -> None:
-    """:class:`ConfigError` unless the field ``name`` has a value the simulation can use (:data:`FIELD_BOUNDS`,
-    :data:`FIELD_LENGTHS`, finite numbers): the one place the keywords of the tasks are checked."""
+    """:class:`ConfigError` unless the field ``name`` has a value the simulation can use."""
     if name == "randomize_physics":
         if not isinstance(value, (bool, np.bool_)):
             raise ConfigError(f"randomize_physics must be True or False, got {value!r}")
@@ -69,39 +60,31 @@ def _check_field(name: str, value: Any) -> None:
 
 @dataclass(frozen=True)
 class GraspConfig:
-    """Physics and task parameters of the Panda grasping tasks.
+    """Physics and task parameters of the Panda grasping tasks (each a keyword of the envs; why each value:
+    ``docs/tasks.md``; gravity, mass and friction: Table A.2 of the thesis).
 
-    :param sim_timestep: PyBullet's internal time step (s). 1/240 s is PyBullet's default and keeps
-        the 60 N finger grip on a 0.1 friction cylinder stable.
-    :param substeps: physics steps per environment step. 4 substeps of 1/240 s give a 60 Hz control
-        rate: the PD controller lifts the object in about 180 steps, well inside the 700-step limit,
-        and each env step costs four physics steps, not more.
+    :param sim_timestep: PyBullet's internal time step (s).
+    :param substeps: physics steps per environment step (4 of 1/240 s: 60 Hz control).
     :param gravity: gravity along world z (m/s^2).
     :param arm_motor_force: maximum torque of each of the 7 arm joint motors (N m).
-    :param finger_motor_force: maximum force of each finger motor (N). The URDF's 20 N lets the
-        low-friction cylinder slip.
-    :param finger_contact_stiffness: contact stiffness of the finger pads (N/m). The URDF's 30,000 lets a
-        60 N grip sink 1 cm into each side of the object, and the stored spring launches an object that
-        slips out metres away; at 1e6 the pads sink 1.6 mm.
+    :param finger_motor_force: maximum force of each finger motor (N).
+    :param finger_contact_stiffness: contact stiffness of the finger pads (N/m).
     :param finger_contact_damping: contact damping of the finger pads (N s/m).
     :param arm_max_delta: largest change of an arm joint target per step in ``"delta"`` action mode (rad).
     :param finger_max_delta: largest change of a finger target per step in ``"delta"`` action mode (m).
     :param object_radius: cylinder radius (m).
     :param object_height: cylinder height (m).
     :param object_mass: object mass (kg).
-    :param object_lateral_friction: object lateral friction coefficient (the fingers' is 1.0, and
-        Bullet multiplies the two).
+    :param object_lateral_friction: object lateral friction coefficient (Bullet multiplies it by the fingers' 1.0).
     :param object_x_range: range of the object's initial x in the robot base frame (m).
     :param object_y_range: range of the object's initial y (m).
     :param object_yaw_range: range of the object's initial yaw (rad).
     :param object_drop_height: height above the tray floor from which the object is dropped (m).
-    :param success_height: height of the object's centre (world z, m) at which a held object
-        completes the task.
+    :param success_height: height of the object's centre (world z, m) at which a held object completes the task.
     :param force_magnitude: magnitude of the one-time external force of PandaForce-v0 (N); 0 disables it.
     :param force_direction: direction of that force in the world frame (normalised internally).
     :param force_height: object height at which the force is applied, once, during one env step (m).
-    :param randomize_physics: sample gravity, object mass and friction from the ranges below at every
-        reset (PandaPerturbed-v0).
+    :param randomize_physics: sample gravity, object mass and friction from the ranges below at every reset.
     :param gravity_range: gravity range (m/s^2) when ``randomize_physics``.
     :param object_mass_range: object mass range (kg) when ``randomize_physics``.
     :param object_friction_range: object lateral friction range when ``randomize_physics``.

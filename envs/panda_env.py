@@ -38,14 +38,11 @@ def check_keywords(kwargs: dict[str, Any]) -> None:
 class PandaGraspEnv(gym.Env):
     """A Franka Panda picking a cylinder out of a tray (thesis chapter 4).
 
-    - Observation (29 float32): 9 joint positions, end-effector position (3) and orientation quaternion
-      xyzw (4), object position (3) and quaternion (4), the vector from the object to each finger (2x3).
-      See :data:`OBSERVATION_SLICES`.
-    - Action (9): desired joint positions (``action_mode="absolute"``, clipped to the joint limits, which
-      are the action space's bounds) or bounded joint-target changes in [-1, 1] (``"delta"``).
-      A NaN or infinite action raises ``ValueError``.
-    - Reward: 1.0 on the step at which the object, held by both fingers, reaches ``success_height``;
-      that step terminates the episode. 0 otherwise. ``info["is_success"]`` on every step.
+    - Observation (29 float32, :data:`OBSERVATION_SLICES`): 9 joint positions, end-effector position and xyzw
+      quaternion, object position and quaternion, the vector from the object to each finger.
+    - Action (9): desired joint positions (``"absolute"``, the joint limits its bounds) or bounded joint-target
+      changes in [-1, 1] (``"delta"``).
+    - Reward: 1.0, terminating, on the step at which the object, held by both fingers, reaches ``success_height``.
 
     :param render_mode: ``None``, ``"rgb_array"`` or ``"human"`` (PyBullet's GUI).
     :param action_mode: ``"absolute"`` or ``"delta"``.
@@ -107,7 +104,6 @@ class PandaGraspEnv(gym.Env):
         ee_position, ee_orientation, left_finger, right_finger = self.robot.link_poses()
         object_position, object_orientation = self.task.object_pose()
         self._object_height = object_position[2]
-        # Filled in place: this runs at every step, and one buffer costs less than a concatenation.
         observation = np.empty(OBSERVATION_SIZE, dtype=np.float64)
         observation[:9] = self._joint_positions
         observation[9:23] = ee_position + ee_orientation + object_position + object_orientation

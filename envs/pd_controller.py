@@ -1,8 +1,5 @@
-"""The scripted proportional-derivative ("PID") controllers: the behaviour data's, and the benchmark's scripted rows.
-
-They read only the 29-D observation and have SB3's ``predict`` signature, so
-``stable_baselines3.common.evaluation.evaluate_policy(PDController(), env)`` works. :data:`CONTROLLERS` names them.
-"""
+"""The scripted proportional-derivative ("PID") controllers (:data:`CONTROLLERS`): they read only the 29-D observation
+and have SB3's ``predict`` signature."""
 
 from __future__ import annotations
 
@@ -21,8 +18,7 @@ KP = 0.5
 MAX_STEP = 0.015
 #: Height above the object's centre at which the hand aligns before descending (m).
 HOVER_HEIGHT = 0.12
-#: End-effector target relative to the object's centre when grasping (m): the fingertip pads cover the
-#: upper half of the cylinder.
+#: End-effector target relative to the object's centre when grasping (m).
 GRASP_OFFSET = 0.0
 #: Horizontal alignment needed to start the descent (m).
 COARSE_XY_TOLERANCE = 0.02
@@ -33,36 +29,28 @@ GRASP_Z_TOLERANCE = 0.01
 CLOSED_MARGIN = 0.004
 #: End-effector height the lift aims for (m), above the 0.4 m success height.
 LIFT_HEIGHT = 0.5
-#: With ``regrasp``: distance (m) between the closed hand and the object's centre beyond which the object counts as
-#: dropped (held, it is within ~1 cm), and the largest vertical distance at which the gripper may close.
+#: With ``regrasp``: distance (m) from the closed hand to the object beyond which the object counts as dropped (held,
+#: it is within ~1 cm), and the largest vertical distance at which the gripper may close.
 DROPPED_DISTANCE = 0.05
 CLOSING_Z_TOLERANCE = 0.03
-#: Hand orientation: pointing down with a fixed yaw, with which the fingers close along the world y axis. An upright
-#: cylinder needs no yaw tracking (following its yaw flips the hand at +-pi/4); one lying on its side is grasped only
-#: when the fingers close across its axis (the ``yaw`` option).
+#: Hand orientation: pointing down, the fingers closing along the world y axis (following an upright cylinder's yaw
+#: would flip the hand at +-pi/4).
 HAND_ORIENTATION = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw, rotation of pi about x
-#: The ``yaw`` option: ``"fixed"`` (``HAND_ORIENTATION``), ``"random"`` (drawn at each grasp attempt) or
-#: ``"aligned"`` (across a lying cylinder's axis).
+#: The ``yaw`` option: ``"fixed"`` (``HAND_ORIENTATION``), ``"random"`` (each attempt) or ``"aligned"``.
 YAW_MODES = ("fixed", "random", "aligned")
-#: Half-width (rad) of the yaws of the hand around ``HAND_ORIENTATION``'s, [-pi/2, pi/2): the two fingers are
-#: alike, so the hand turned by pi grasps as it does unturned, and a half turn covers every grasp.
+#: Half-width (rad) of the hand's yaws around ``HAND_ORIENTATION``'s: the fingers are alike, so a half turn covers all.
 YAW_HALF_RANGE = np.pi / 2
-#: Largest difference (rad) between the hand's yaw and the attempt's with which the hand descends: it turns while
-#: hovering, not while it closes on the object.
+#: Largest difference (rad) between the hand's yaw and the attempt's with which the hand descends.
 YAW_TOLERANCE = 0.05
-#: Largest lead (rad) of the hand's yaw target over its observed yaw, as ``MAX_STEP`` is the position's: asked for a
-#: half turn at once, the inverse kinematics trades the position for the orientation and the hand sweeps down through
-#: the tray. The hand then turns ~0.045 rad a step in absolute actions, ~0.02 in delta ones (the motors lag behind
-#: targets that move at most 0.05 rad a step); a lead of 0.3 regrasped worse (random yaw, PandaForce-v0, 40 episodes
-#: in delta actions: 0.10 against 0.175).
+#: Largest lead (rad) of the hand's yaw target over its observed yaw (asked for a half turn at once, the inverse
+#: kinematics sweeps the hand down through the tray); a lead of 0.3 regrasped worse (random yaw, PandaForce-v0, 40
+#: episodes in delta actions: 0.10 against 0.175).
 MAX_YAW_STEP = 0.15
-#: Height (m) of the hand above the object's centre below which it does not turn (it rises to ``HOVER_HEIGHT`` first):
-#: open fingers turning next to the object would sweep it along the tray.
+#: Height (m) of the hand above the object's centre below which it does not turn (open fingers would sweep the object).
 TURN_CLEARANCE = 0.08
 #: Tilt (rad) of the object's axis from the vertical beyond which the aligned yaw counts the cylinder as lying.
 LYING_TILT = np.pi / 4
-#: How far (rad) beyond the half turn the aligned yaw may go to spare the hand a half turn: the hand turned to -pi/2
-#: grasps a cylinder whose aligned yaw is just under +pi/2 where it is (and an axis at +-pi/2 jitters across it).
+#: How far (rad) beyond the half turn the aligned yaw may go to spare the hand a half turn (:meth:`PDController._follow`).
 YAW_HYSTERESIS = 0.2
 #: The controllers' names (evaluation, the benchmark's rows, behaviour policies) and the keywords of each.
 CONTROLLERS = {
@@ -71,11 +59,9 @@ CONTROLLERS = {
     "pid-regrasp-yaw": {"regrasp": True, "yaw": "random"},
     "pid-regrasp-aligned": {"regrasp": True, "yaw": "aligned"},
 }
-#: Reference controllers, not behaviour policies: the aligned yaw shows what turning the hand can give at best (the
-#: ceiling of the benchmark's scripted rows) and is never a source of training data.
+#: Reference controllers (the benchmark's ceiling), never a source of training data.
 REFERENCE_CONTROLLERS = ("pid-regrasp-aligned",)
-#: The controllers whose runs are behaviour data (the datasets' policies, with and without noise): all but the
-#: references.
+#: The controllers whose runs are behaviour data: all but the references.
 BEHAVIOUR_CONTROLLERS = tuple(name for name in CONTROLLERS if name not in REFERENCE_CONTROLLERS)
 
 
@@ -121,15 +107,13 @@ CLOSING_DIRECTION = _axis(HAND_ORIENTATION, 1)
 
 
 def hand_yaw(orientation: np.ndarray) -> float:
-    """The yaw (rad, in [-pi, pi]) of the hand of xyzw ``orientation`` relative to ``HAND_ORIENTATION``: the angle
-    about the world z axis from ``CLOSING_DIRECTION`` to the hand's closing direction."""
+    """The yaw (rad, in [-pi, pi]) of the hand of xyzw ``orientation`` relative to ``HAND_ORIENTATION``."""
     return _angle(CLOSING_DIRECTION, _axis(orientation, 1))
 
 
 def aligned_yaw(object_orientation: np.ndarray) -> float:
     """The yaw (rad, in [-pi/2, pi/2)) relative to ``HAND_ORIENTATION`` with which the fingers close across the axis of
-    a cylinder of xyzw ``object_orientation`` lying on its side (tilted more than ``LYING_TILT``); 0 for an upright one,
-    which any yaw grasps."""
+    a lying cylinder of xyzw ``object_orientation``; 0 for an upright one (tilted less than ``LYING_TILT``)."""
     axis = _axis(object_orientation, 2)
     if abs(axis[2]) > np.cos(LYING_TILT):
         return 0.0
@@ -137,16 +121,13 @@ def aligned_yaw(object_orientation: np.ndarray) -> float:
     return _half_turn(_angle(CLOSING_DIRECTION, across))
 
 
-#: Largest horizontal and vertical distance (m) from the object's centre to the point between the fingers at which
-#: fingers that begin to close count as closing on the object (:func:`closing_angles`).
+#: Largest horizontal and vertical distance (m) from the object to the fingers' midpoint of a closing on it.
 CLOSING_REACH = 0.05
 
 
 def closing_angle(observation: np.ndarray) -> float | None:
-    """The angle (degrees, in [0, 90]) between the hand's closing direction and the axis of a cylinder lying on its
-    side (tilted more than ``LYING_TILT``), both seen from above, in a 29-D observation; ``None`` for an upright
-    cylinder, which the fingers grasp from any direction. 90 is a closing across the axis (what grasps a lying
-    cylinder), 0 one along it."""
+    """The angle (degrees, in [0, 90]) seen from above between the hand's closing direction and a lying cylinder's
+    axis in a 29-D observation (90: across it, what grasps); ``None`` for an upright cylinder."""
     observation = np.asarray(observation, dtype=np.float64)
     axis = _axis(observation[OBSERVATION_SLICES["object_orientation"]], 2)
     if abs(axis[2]) > np.cos(LYING_TILT):
@@ -174,28 +155,19 @@ def closing_angles(observations: np.ndarray) -> list[float | None]:
 
 
 class PDController:
-    """End-effector proportional control with inverse kinematics to the 9 joint targets.
+    """End-effector proportional control with inverse kinematics (on a simulator of its own) to the 9 joint targets.
 
-    The phase is read from the observation. With the gripper open it moves above the object, descends to it, and
-    closes once aligned within the grasp tolerances; once the fingers have closed to the object's width it lifts to
-    ``LIFT_HEIGHT``. By default a dropped object is not regrasped (the fingers stay closed), as in the thesis's
-    controller; with ``regrasp`` a closed hand more than ``DROPPED_DISTANCE`` from the object reopens and starts over
-    above it (PandaForce-v0's knock-out). In ``"delta"`` mode the gripper's actions are +1 (open) or -1 (close). The
-    "derivative" of the thesis's PID is ``k_d * error / dt``, a second proportional term: here both are the single
-    gain ``kp``.
+    The phase is read from the observation: with the gripper open it moves above the object, descends, and closes once
+    aligned; once the fingers have closed to the object's width it lifts to ``LIFT_HEIGHT``. With ``regrasp`` a closed
+    hand more than ``DROPPED_DISTANCE`` from the object reopens and starts over. In ``"delta"`` mode the gripper's
+    actions are +1 (open) or -1 (close). The thesis's PID's derivative term is a second proportional one: both are
+    ``kp``.
 
-    The hand points down. With ``yaw="fixed"`` (the default) its yaw is ``HAND_ORIENTATION``'s and the controller is
-    memoryless (``predict`` returns ``state`` unchanged). Otherwise each grasp attempt (the first approach, and each
-    regrasp: the step at which the closed hand counts the object as dropped) has a yaw of its own, kept in the
-    ``state`` that ``predict`` returns: ``"random"`` draws it uniformly from [-pi/2, pi/2) around
-    ``HAND_ORIENTATION``'s yaw and holds it through the attempt; ``"aligned"`` turns the fingers to close across a
-    lying cylinder's axis (:func:`aligned_yaw`), following the object until the fingers close on it. The hand turns
-    while it hovers (not while its fingers reopen after a drop, nor lower than ``TURN_CLEARANCE`` above the object),
-    at most ``MAX_YAW_STEP`` ahead of its observed yaw, and descends only once within ``YAW_TOLERANCE`` of the
-    attempt's yaw. ``"aligned"`` is a reference (:data:`REFERENCE_CONTROLLERS`), not a behaviour policy.
-
-    Inverse kinematics runs on a robot in a DIRECT simulator of the controller's own, reset to the observed
-    joints, so it never disturbs the environment's simulation.
+    The hand points down. With ``yaw="fixed"`` its yaw is ``HAND_ORIENTATION``'s and the controller is memoryless;
+    otherwise each grasp attempt has a yaw of its own, kept in ``predict``'s ``state``: ``"random"`` draws it from
+    [-pi/2, pi/2), ``"aligned"`` (a reference) closes the fingers across a lying cylinder's axis (:func:`aligned_yaw`).
+    The hand turns while it hovers, at most ``MAX_YAW_STEP`` ahead of its observed yaw, and descends only once within
+    ``YAW_TOLERANCE`` of the attempt's yaw.
 
     :param action_mode: the action mode of the env it drives, ``"absolute"`` or ``"delta"``.
     :param config: the env's configuration (object size, delta limits); the defaults if omitted.
@@ -235,11 +207,9 @@ class PDController:
         return cls(unwrapped.action_mode, unwrapped.config, **kwargs)
 
     def seed(self, seed: int | Sequence[int] | np.random.Generator | None = None) -> None:
-        """Seed the ``"random"`` yaw's draws: a generator is drawn from as it is; a seed (an int or a sequence of ints,
-        as ``numpy.random.SeedSequence`` takes) gives ``numpy.random.default_rng(numpy.random.SeedSequence(seed)
-        .spawn(1)[0])``, a child of the seed's sequence, so that the draws do not repeat those of a generator seeded
-        with the same seed (an env reset with ``seed`` draws the object's pose from ``default_rng(seed)``'s stream);
-        ``None``: fresh entropy."""
+        """Seed the ``"random"`` yaw's draws: a generator as it is; a seed (as ``numpy.random.SeedSequence`` takes)
+        gives a child of its sequence, so the draws do not repeat an env's reset with the same seed; ``None``: fresh
+        entropy."""
         if isinstance(seed, np.random.Generator):
             self.rng = seed
         else:
@@ -281,15 +251,9 @@ class PDController:
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """The action for one observation (shape (29,)) or a batch (shape (n, 29)), SB3-style.
-
-        With a yaw other than ``"fixed"``, pass back the ``state`` returned by the previous call, and
-        ``episode_start`` (one flag per observation, as SB3's ``evaluate_policy`` does) true at each episode's first
-        observation; ``state=None`` starts a new episode for every observation.
-
-        :return: the action(s) as float32, and ``state`` unchanged (yaw ``"fixed"``: the controller is memoryless) or
-            the new state: each observation's attempt yaw (rad) and whether its hand counted the object as dropped.
-        """
+        """The float32 action for one observation (shape (29,)) or a batch (shape (n, 29)), SB3-style, and the state:
+        ``state`` unchanged for the fixed yaw, else each observation's attempt yaw (rad) and whether its hand counted
+        the object as dropped (pass it back, with ``episode_start`` as SB3's ``evaluate_policy`` does)."""
         observation = np.asarray(observation, dtype=np.float64)
         batch = observation.reshape(-1, observation.shape[-1])
         if self.yaw == "fixed":
@@ -362,8 +326,7 @@ class PDController:
     @staticmethod
     def _follow(target: float, hand: float) -> float:
         """``target`` (rad, in [-pi/2, pi/2)) or the yaw a half turn from it, whichever is nearer the ``hand``'s yaw,
-        as long as it is within ``YAW_HYSTERESIS`` of the half turn's ends: the hand never turns by half a turn for a
-        grasp it can make where it is, nor for an axis jittering across +-pi/2."""
+        within ``YAW_HYSTERESIS`` of the half turn's ends."""
         nearest = hand + _half_turn(target - hand)
         return nearest if abs(nearest) <= YAW_HALF_RANGE + YAW_HYSTERESIS else target
 

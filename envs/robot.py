@@ -24,12 +24,9 @@ ACTION_MODES = ("absolute", "delta")
 
 
 class Panda:
-    """A fixed-base Panda (``franka_panda/panda.urdf`` from ``pybullet_data``) in a :class:`Simulator`.
-
-    Actions are 9 desired joint positions (7 arm joints in rad, 2 finger joints in m) sent to PyBullet's
-    position controller. In ``"absolute"`` mode the action *is* the target, clipped to the joint limits;
-    in ``"delta"`` mode an action in [-1, 1] is the change of each target relative to the current joint
-    position, scaled by ``arm_max_delta`` / ``finger_max_delta``, then clipped to the joint limits.
+    """A fixed-base Panda (``franka_panda/panda.urdf``) in a :class:`Simulator`, driven by 9 joint targets (7 arm
+    joints in rad, 2 finger joints in m): the action itself (``"absolute"``) or the joint positions plus the action in
+    [-1, 1] times ``arm_max_delta`` / ``finger_max_delta`` (``"delta"``), clipped to the joint limits.
 
     :param sim: the simulator to load the robot into.
     :param config: motor forces and delta limits.
@@ -51,9 +48,7 @@ class Panda:
         self.motor_forces = [config.arm_motor_force] * n_arm + [config.finger_motor_force] * len(FINGER_JOINTS)
         self.max_delta = np.array([config.arm_max_delta] * n_arm + [config.finger_max_delta] * len(FINGER_JOINTS))
         self._client_id = sim.id
-        # PyBullet ignores the URDF's joint velocity limits (and changeDynamics' maxJointVelocity caps every
-        # joint of a body at once): they are passed to each motor. Without them random targets swing the arm
-        # fast enough to press the object through the 2 cm tray floor.
+        # PyBullet ignores the URDF's joint velocity limits: they are passed to each motor (docs/tasks.md).
         self.max_velocities = [info[11] for info in infos]
         self._null_space = {
             "lowerLimits": self.lower_limits.tolist(),
@@ -99,9 +94,7 @@ class Panda:
         return np.array([state[0] for state in states])
 
     def link_poses(self) -> tuple[tuple[float, ...], ...]:
-        """End-effector position (3), its orientation quaternion xyzw (4) and the positions of the two fingers
-        (3 each), in the world frame as of the last simulation step; a finger's position is its link's centre
-        of mass."""
+        """End-effector position and xyzw quaternion, and the two fingers' centres of mass, in the world frame."""
         end_effector, left, right = pybullet.getLinkStates(
             self.body, (END_EFFECTOR_LINK, *FINGER_LINKS), physicsClientId=self._client_id
         )
@@ -114,8 +107,7 @@ class Panda:
         return action.clip(self.lower_limits, self.upper_limits)
 
     def action_from_targets(self, targets: np.ndarray, joint_positions: np.ndarray) -> np.ndarray:
-        """The action that best requests ``targets`` from ``joint_positions`` (the inverse of
-        :meth:`targets_from_action`, saturating in ``"delta"`` mode)."""
+        """The action that best requests ``targets`` (:meth:`targets_from_action`'s inverse, saturating)."""
         targets = np.clip(targets, self.lower_limits, self.upper_limits)
         if self.action_mode == "delta":
             return np.clip((targets - joint_positions) / self.max_delta, -1.0, 1.0)
@@ -124,8 +116,8 @@ class Panda:
     def inverse_kinematics(
         self, joint_positions: np.ndarray, position: np.ndarray, orientation: np.ndarray, iterations: int = 20
     ) -> np.ndarray:
-        """Joint positions placing the end effector at ``position`` with ``orientation`` (xyzw), solved from
-        ``joint_positions``. This teleports the robot: call it on a simulator of its own."""
+        """Joint positions placing the end effector at ``position`` with xyzw ``orientation``, from
+        ``joint_positions`` (it teleports the robot: call it on a simulator of its own)."""
         self._teleport(joint_positions)
         solution = pybullet.calculateInverseKinematics(
             self.body,

@@ -1,8 +1,5 @@
-"""A thin wrapper owning one PyBullet physics client, so that many environments live in one process.
-
-This module is the first to import PyBullet (``envs`` imports it before the others) and the one that connects to it:
-PyBullet's C code prints ``pybullet build time: ...`` when it is imported and ``argv[0]=`` when it connects, straight
-to the process's file descriptors, and both are sent to ``os.devnull`` here.
+"""A thin wrapper owning one PyBullet physics client, so that many environments live in one process. It imports and
+connects to PyBullet with the lines its C code prints then sent to ``os.devnull``.
 """
 
 from __future__ import annotations
@@ -32,13 +29,8 @@ def _flush_output() -> None:
 
 @contextlib.contextmanager
 def silenced(*fds: int) -> Iterator[None]:
-    """Send what is written to the file descriptors ``fds`` (1: stdout, 2: stderr) to ``os.devnull`` while the block
-    runs, C code's output included, whether they are a terminal, a pipe or a file. The buffers are flushed first (so
-    nothing written before is lost) and at the end (so nothing written inside comes out later). The descriptors are
-    the process's: another thread's output during the block is lost too.
-
-    :param fds: the file descriptors to silence; one that is closed is left alone.
-    """
+    """Send what is written to the file descriptors ``fds`` (a closed one is left alone) to ``os.devnull`` while the
+    block runs, C code's output included; the buffers are flushed before and after."""
     _flush_output()
     devnull = os.open(os.devnull, os.O_WRONLY)
     saved = []
@@ -65,15 +57,13 @@ with silenced(1, 2):  # pybullet build time: ... (on stderr with PyBullet 3.2.7)
 
 
 class _BulletClient(BulletClient):
-    """PyBullet's client, whose finaliser also takes one that Ctrl-C cut short while it connected: it has no id yet
-    (``-1``, PyBullet's for none), where ``BulletClient.__del__`` would print a traceback as the program ends."""
+    """PyBullet's client, whose finaliser also takes one that Ctrl-C cut short while it connected (no id yet)."""
 
     _client = -1
 
 
 class Simulator:
-    """One PyBullet world: a :class:`BulletClient` (DIRECT unless ``render_mode == "human"``), its time
-    step and the camera.
+    """One PyBullet world: a ``BulletClient`` (DIRECT unless ``render_mode == "human"``), its time step and camera.
 
     :param timestep: physics time step (s).
     :param substeps: physics steps per call of :meth:`step`.
@@ -97,8 +87,7 @@ class Simulator:
         self.client.setAdditionalSearchPath(pybullet_data.getDataPath())
         if render_mode == "human":
             self.client.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)
-        # One stepSimulation call runs all substeps inside Bullet; an external force applied before it
-        # acts during the whole control step. Deterministic overlapping pairs make restoreState exact.
+        # One call runs all substeps (a force applied before it acts throughout); deterministic pairs: exact restores.
         self.client.setPhysicsEngineParameter(
             fixedTimeStep=timestep * substeps, numSubSteps=substeps, deterministicOverlappingPairs=1
         )
@@ -110,8 +99,7 @@ class Simulator:
         self._projection = self.client.computeProjectionMatrixFOV(
             fov=60.0, aspect=render_width / render_height, nearVal=0.05, farVal=5.0
         )
-        # BulletClient resolves every attribute through inspect and functools.partial: bind the calls
-        # made at every step once.
+        # BulletClient resolves every attribute through inspect: bind the call made at every step once.
         self.step_simulation = self.client.stepSimulation
 
     @property

@@ -17,13 +17,9 @@ TRAY_FLOOR_HEIGHT = 0.015
 
 
 class GraspTask:
-    """Pick the cylinder out of the tray and lift it, held by both fingers, to ``success_height``.
-
-    The scene is a plane, the tray (``tray/traybox.urdf``) and an upright cylinder of
-    ``object_radius`` x ``object_height`` dropped at a random position and yaw. With ``force_magnitude``
-    set, the first time the object rises to ``force_height`` a force pushes it for one control step
-    (PandaForce-v0); with ``randomize_physics`` every reset samples gravity, object mass and friction
-    (PandaPerturbed-v0).
+    """Pick the cylinder (dropped upright at a random position and yaw) out of the tray and lift it, held by both
+    fingers, to ``success_height``; with ``force_magnitude``, a push for one step the first time it rises to
+    ``force_height``; with ``randomize_physics``, the physics sampled at every reset.
 
     :param sim: the simulator to build the scene in.
     :param robot: the robot whose fingers must hold the object.
@@ -43,16 +39,14 @@ class GraspTask:
         self.object = client.createMultiBody(
             config.object_mass, collision, visual, [TRAY_POSITION[0], 0.0, 0.2], useMaximalCoordinates=True
         )
-        # Continuous collision detection (for maximal-coordinate bodies only): a knocked or flung cylinder
-        # must not tunnel through the 2 cm tray floor.
+        # Continuous collision detection: a knocked or flung cylinder must not tunnel through the tray floor.
         client.changeDynamics(self.object, -1, ccdSweptSphereRadius=0.9 * radius)
         self.physics: dict[str, float] = {}
         self._force_applied = False
         self._client_id = sim.id
 
     def reset(self, np_random: np.random.Generator) -> dict[str, Any]:
-        """Drop the object at a random pose and set this episode's physics; return the physics as a dict
-        (``gravity``, ``object_mass``, ``object_lateral_friction``)."""
+        """Drop the object at a random pose and set this episode's physics (returned as a dict)."""
         config, client = self.config, self.sim.client
         x = np_random.uniform(*config.object_x_range)
         y = np_random.uniform(*config.object_y_range)
@@ -85,8 +79,8 @@ class GraspTask:
         return pybullet.getBasePositionAndOrientation(self.object, physicsClientId=self._client_id)
 
     def before_step(self, object_height: float) -> bool:
-        """Apply the one-time knock-out force if the object has just reached ``force_height``; return
-        whether it was applied now. Call before stepping the simulator: the force acts for that step."""
+        """Apply the one-time knock-out force, before a step, if the object has reached ``force_height``; whether
+        it was applied now."""
         config = self.config
         if self._force_applied or config.force_magnitude == 0 or object_height < config.force_height:
             return False
@@ -104,6 +98,5 @@ class GraspTask:
         )
 
     def is_success(self, object_height: float) -> bool:
-        """The object's centre is at ``success_height`` or above and both fingers hold it (a flung object
-        does not count)."""
+        """The object's centre is at ``success_height`` or above and both fingers hold it."""
         return bool(object_height >= self.config.success_height) and self.is_held()
