@@ -21,37 +21,27 @@ if TYPE_CHECKING:
 
 
 class BC(OfflineSAC):
-    """Behaviour cloning: SAC's actor trained to reproduce the dataset's actions (mean squared error of its
-    deterministic action, :func:`~sb3_cql.common.behaviour_cloning_loss`), offline and with no critic update.
-
-    The model is a SAC model in every other respect (policy, ``predict``, ``save``/``load``, observation
-    normalisation from the dataset), so anything that evaluates or loads a SAC or CQL model takes it; its critics
-    stay untrained. ``BC("MlpPolicy", env, dataset="sb3cql/Panda-v0/pid-v0").learn(20_000)``. A ``batch_size``
-    below 1, or a replay buffer given as ``dataset`` that holds a NaN or an infinity or an action outside [-1, 1], is a
-    :class:`~sb3_cql.common.SettingError`; ``save`` and ``save_replay_buffer`` leave a file whole or none.
+    """Behaviour cloning: SAC's actor trained offline to reproduce the dataset's actions (mean squared error of its
+    deterministic action, :func:`~sb3_cql.common.behaviour_cloning_loss`), with no critic update. The model is a SAC
+    model in every other respect (its critics untrained), so anything that evaluates or loads a SAC model takes it.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
     :param env: the environment (for its spaces, and the default evaluation env).
     :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer`` (see :class:`~sb3_cql.common.OfflineSAC`).
-    :param min_return: filtered imitation: load only the dataset's episodes whose return is at least this
-        (``1.0`` on the Panda tasks, whose reward is 1 at success only: the successful episodes), through Minari's
-        ``filter_episodes`` (:func:`sb3_cql.data.selection.select_episodes`); a Minari dataset or id only. ``None``:
-        every episode.
+    :param min_return: filtered imitation: load only the episodes whose return is at least this (``1.0`` on the Panda
+        tasks: the successful ones, :func:`sb3_cql.data.selection.select_episodes`); a Minari dataset or id only.
     :param top_fraction: filtered imitation: load only this share of the episodes (of those ``min_return`` keeps),
-        those of the highest returns; a Minari dataset or id only. ``None``: every episode.
+        those of the highest returns; a Minari dataset or id only.
     :param learning_rate: learning rate of the actor.
     :param buffer_size: size of an empty replay buffer when ``dataset`` is ``None``.
     :param batch_size: minibatch size of each gradient step.
     :param normalize_observations: z-score the observations with the dataset's mean and std inside the policy;
-        ``None`` (the default) does for an ``MlpPolicy`` on Box observations (see
-        :class:`~sb3_cql.common.OfflineSAC`), ``True`` with another policy is refused.
-    :param action_chunk: actions per decision: the actor imitates the data's chunks of ``action_chunk`` actions (from
-        every step), and each chunk runs open loop when the model acts (:class:`~sb3_cql.common.OfflineSAC`).
+        ``None`` does for an ``MlpPolicy`` on Box observations (:class:`~sb3_cql.common.OfflineSAC`).
+    :param action_chunk: actions per decision: the actor imitates the data's chunks, run open loop when it acts.
     :param replay_buffer_class: the class of the replay buffer the data load into (SAC's).
     :param replay_buffer_kwargs: keywords of that class (SAC's).
-    :param optimize_memory_usage: SAC's; only ``False`` (the offline data keep each transition's next observation).
-    :param n_steps: SB3's n-step returns in the buffer's samples (SAC's meaning; BC reads only their observations
-        and actions).
+    :param optimize_memory_usage: SAC's; only ``False``.
+    :param n_steps: SB3's n-step returns in the buffer's samples (BC reads only their observations and actions).
     :param stats_window_size: SAC's window of the rollout logs.
     :param tensorboard_log: TensorBoard log folder.
     :param policy_kwargs: keywords of the policy (``net_arch``, ...).
@@ -59,8 +49,7 @@ class BC(OfflineSAC):
     :param seed: seed of the random generators.
     :param device: torch device.
     :param _init_setup_model: build the networks now.
-    :param sac_kwargs: none: SAC's keywords for what BC does not train (``gamma``, ``tau``, ``ent_coef``, the
-        interaction's ``train_freq``, ...) are refused with one line saying so.
+    :param sac_kwargs: none: SAC's keywords for what BC does not train (``gamma``, ``tau``, ...) are refused.
     """
 
     def __init__(
@@ -146,7 +135,7 @@ class BC(OfflineSAC):
 
     @classmethod
     def refuse_unknown_keywords(cls, keywords: Any) -> None:
-        """SAC's keywords for what BC does not train, and unknown ones, as BC's constructor refuses them."""
+        """Refuse keywords as BC's constructor does."""
         unknown = {keyword: None for keyword in keywords if keyword not in inspect.signature(cls.__init__).parameters}
         if unknown:
             _refuse_sac_keywords(unknown)

@@ -15,14 +15,10 @@ from sb3_cql.cql.cql import CQL
 
 class CalQL(CQL):
     """Cal-QL (Nakamoto et al. 2023, https://arxiv.org/abs/2303.05479): :class:`~sb3_cql.CQL` whose conservative term
-    sees the policy's values (at ``s`` and ``s'``) as ``max(Q, G(s))``, with ``G(s)`` the discounted return-to-go of
-    the data's episode from ``s`` under the critics' rewards (``reward_scale``, ``reward_bias``), so the term stops
-    pushing them below what the data earned. It overrides one hook, :meth:`policy_values_in_logsumexp`.
-
-    The replay buffer is a :class:`~sb3_cql.common.ReturnToGoReplayBuffer` (returns-to-go computed when the data are
-    loaded, and for online episodes when they end; ``-inf``, no bound, until then). ``train/cql_bound_rate`` logs the
-    fraction of the first critic's policy-action values the bound lifted. Its keywords are :class:`~sb3_cql.CQL`'s;
-    in the zoo it is ``--algo calql``.
+    sees the policy's values as ``max(Q, G(s))``, ``G(s)`` the discounted return-to-go of the data's episode under the
+    critics' rewards (:meth:`policy_values_in_logsumexp`), from a :class:`~sb3_cql.common.ReturnToGoReplayBuffer`.
+    ``train/cql_bound_rate`` logs the fraction of the first critic's values the bound lifted. Its keywords are
+    :class:`~sb3_cql.CQL`'s; in the zoo it is ``--algo calql``.
     """
 
     def _check_settings(self) -> None:

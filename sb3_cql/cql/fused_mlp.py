@@ -1,12 +1,7 @@
-"""A ReLU MLP's forward and backward as one autograd node: the same function and gradients as the ``nn.Sequential``
-SB3 builds, with fewer passes over memory.
-
-CQL pushes ``batch * (1 + 3 * n_actions)`` rows (10,912 at the thesis's configuration) through each critic, so a
-step is dominated by 10,912 x 256 activations. ``nn.Sequential`` writes the matrix product, then a fresh ReLU output,
-and in the backward a fresh ReLU gradient, and computes a gradient for its input. Here each hidden layer is one
-oneDNN ``linear + ReLU`` (bias and ReLU applied inside the product; ``addmm`` and an in-place ReLU where this torch
-build lacks it), and the input's gradient is computed only if the input needs one (CQL's inputs do not).
-``benchmarks/cql_speed.py`` measures the whole step.
+"""A ReLU MLP's forward and backward as one autograd node: the same function and gradients as SB3's ``nn.Sequential``,
+with fewer passes over CQL's ``batch * (1 + 3 * n_actions)`` rows. Each hidden layer is one oneDNN ``linear + ReLU``
+(``addmm`` and an in-place ReLU where this torch build lacks it), and the input's gradient is computed only if needed
+(``benchmarks/cql_speed.py`` measures the step).
 """
 
 from __future__ import annotations

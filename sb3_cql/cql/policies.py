@@ -1,14 +1,5 @@
-"""CQL's policies: SAC's actor and twin critics, with the two network passes CQL adds.
-
-- :class:`CQLCritic` has :meth:`~CQLCritic.forward_fused`: SB3's ``forward`` for the conservative term's many rows
-  (``batch * (1 + 3 * cql_n_actions)``), each ReLU Q-network as one fused autograd node
-  (:func:`~sb3_cql.cql.fused_mlp.relu_mlp`) on CPU tensors.
-- :class:`CQLActor` has :meth:`~CQLActor.imitation_dist_params`: SAC's distribution parameters with the log-std head
-  fed the shared layers' output detached, for the behaviour-cloning warm start.
-
-Both keep SB3's own ``forward`` / ``get_action_dist_params`` for everything else; ``tests/test_cql.py`` checks each
-copy of SB3's rules against SB3's method, so a change of SB3 underneath fails there.
-"""
+"""CQL's policies: SAC's actor and twin critics, with the two network passes CQL adds (:meth:`CQLCritic.forward_fused`,
+:meth:`CQLActor.imitation_dist_params`); ``tests/test_cql.py`` checks each copy of SB3's rules against SB3's method."""
 
 from __future__ import annotations
 
@@ -28,12 +19,9 @@ class CQLCritic(ContinuousCritic):
     """SB3's ``ContinuousCritic`` with a fused pass for large batches (:meth:`forward_fused`)."""
 
     def forward_fused(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
-        """What ``forward(obs, actions)`` computes, with the same gradients (the features extractor trains through
-        the critic only when it is not shared with the actor, as SB3's), each Q-network's forward and backward as one
-        fused ``Linear -> ReLU -> ...`` node when it is a ReLU MLP and the tensors are on the CPU (oneDNN); SB3's own
-        ``forward`` otherwise (other networks, other devices, a subclass's own ``forward``). Also callable on any SB3
-        ``ContinuousCritic`` (``CQLCritic.forward_fused(critic, obs, actions)``), as CQL does for a policy of SAC's
-        classes."""
+        """``forward(obs, actions)`` with the same gradients, each ReLU MLP Q-network as one fused node
+        (:func:`~sb3_cql.cql.fused_mlp.relu_mlp`) on CPU tensors; SB3's ``forward`` otherwise. Also callable on any
+        SB3 ``ContinuousCritic`` (``CQLCritic.forward_fused(critic, obs, actions)``)."""
         networks = [relu_mlp_parameters(q_net) for q_net in self.q_networks]
         sb3_forward = type(self).forward is ContinuousCritic.forward  # a critic with a forward of its own keeps it
         if not sb3_forward or actions.device.type != "cpu" or any(parameters is None for parameters in networks):
@@ -49,9 +37,8 @@ class CQLActor(Actor):
     """SB3's SAC ``Actor`` with the warm start's distribution parameters (:meth:`imitation_dist_params`)."""
 
     def imitation_dist_params(self, obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """``get_action_dist_params(obs)``'s mean actions and log-std (CQL has no gSDE), with the log-std head fed
-        the shared layers' output detached: gradients of the log-std reach that head only. Also callable on any SAC
-        ``Actor`` (``CQLActor.imitation_dist_params(actor, obs)``)."""
+        """``get_action_dist_params(obs)``'s mean actions and log-std, the log-std head fed the shared layers' output
+        detached. Also callable on any SAC ``Actor`` (``CQLActor.imitation_dist_params(actor, obs)``)."""
         features = self.extract_features(obs, self.features_extractor)
         latent_pi = self.latent_pi(features)
         log_std = th.clamp(self.log_std(latent_pi.detach()), LOG_STD_MIN, LOG_STD_MAX)
@@ -59,8 +46,8 @@ class CQLActor(Actor):
 
 
 class CQLPolicy(OfflinePolicy):
-    """SAC's policy (``MlpPolicy``, optionally on action chunks: :class:`~sb3_cql.common.policies.OfflinePolicy`) with
-    :class:`CQLActor` and :class:`CQLCritic`; the same parameters, so a model saved with SAC's policy loads into it."""
+    """:class:`~sb3_cql.common.policies.OfflinePolicy` with :class:`CQLActor` and :class:`CQLCritic`: SAC's
+    parameters, so a model saved with SAC's policy loads into it."""
 
     def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> CQLActor:
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)

@@ -28,9 +28,7 @@ Q_AGGREGATIONS = ("min", "mean")
 
 
 def expectile_loss(differences: th.Tensor, expectile: float) -> th.Tensor:
-    """The expectile regression loss of IQL's value, ``mean(|expectile - 1(u < 0)| * u^2)`` over the
-    ``differences`` ``u = Q(s, a) - V(s)``: ``expectile`` 0.5 is the mean squared error, above 0.5 the value
-    approaches the upper expectile of Q over the data's actions (their in-sample maximum as it nears 1)."""
+    """IQL's value loss, ``mean(|expectile - 1(u < 0)| * u^2)`` over the ``differences`` ``u = Q(s, a) - V(s)``."""
     weight = th.where(differences < 0, 1.0 - expectile, expectile)
     return (weight * differences.pow(2)).mean()
 
@@ -38,55 +36,35 @@ def expectile_loss(differences: th.Tensor, expectile: float) -> th.Tensor:
 class IQL(OfflineSAC):
     """Implicit Q-Learning (Kostrikov, Nair and Levine 2021, https://arxiv.org/abs/2110.06169), trained offline.
 
-    Every loss reads only the data's actions, so the values stay on the scale of the data's returns. Each gradient
-    step, in the reference code's order (:meth:`train`, one hook a loss):
+    Every loss reads only the data's actions. Each gradient step (:meth:`train`, one hook a loss, in the reference
+    code's order) fits the value by expectile regression on the target critics (:meth:`value_loss`), the actor by
+    advantage-weighted regression (:meth:`actor_loss`; :meth:`ddpg_actor_loss` with ``actor_loss_type="ddpg_awr"``),
+    the twin critics by TD to the next state's value (:meth:`compute_target`, :meth:`critic_loss`), then the targets
+    by Polyak averaging. Everything else is :class:`~sb3_cql.common.OfflineSAC`'s. The defaults are
+    ikostrikov/implicit_q_learning's MuJoCo settings and d3rlpy's ``IQLConfig``; ``hyperparams/iql.yml`` and
+    ``hyperparams/iql_yaw.yml`` hold the Panda tasks'.
 
-    - the value, by expectile regression on the target critics at the data's actions (:meth:`value_loss`):
-      ``L_V = E[|expectile - 1(u < 0)| u^2]``, ``u = Q'(s, a) - V(s)``, ``Q'`` the target twins' minimum (their mean
-      with ``q_agg="mean"``, :meth:`target_q_values`);
-    - the actor, by advantage-weighted regression (:meth:`actor_loss`): ``L_pi = -E[w log pi(a | s)]``, ``w =
-      min(exp(temperature * (Q'(s, a) - V(s))), max_weight)``, ``pi`` the Gaussian of
-      :class:`~sb3_cql.iql.policies.IQLActor`; with ``actor_loss_type="ddpg_awr"`` its deterministic action climbs
-      the critics instead, anchored to the data by the same weights (:meth:`ddpg_actor_loss`);
-    - the twin critics, by TD to the value of the next state (:meth:`compute_target`, :meth:`critic_loss`):
-      ``L_Q = sum_i E[(Q_i(s, a) - r - (1 - d) * discount * V(s'))^2]``, with SB3's n-step discounts and the critics'
-      rewards ``reward_scale * r + reward_bias``, the target raised to ``target_floor`` where set;
-    - the target critics, by Polyak averaging with ``tau``; with ``actor_average_tau``, an average of the actor too,
-      which the model acts with.
-
-    Everything else is :class:`~sb3_cql.common.OfflineSAC`'s: datasets, ``n_steps``, ``action_chunk``, the
-    observation normaliser, ``save``/``load``, callbacks, best-of-N acting and online fine-tuning (``online_fraction``:
-    the same losses on mixed batches). The defaults are the references' for a generic task
-    (ikostrikov/implicit_q_learning's MuJoCo settings, d3rlpy's ``IQLConfig``); ``hyperparams/iql.yml`` and
-    ``hyperparams/iql_yaw.yml`` hold the Panda tasks' settings.
-
-    :param policy: the policy model (``"MlpPolicy"``, ``"CnnPolicy"``, ``"MultiInputPolicy"``: SAC's, with IQL's
-        actor and value network, :mod:`sb3_cql.iql.policies`).
+    :param policy: ``"MlpPolicy"``, ``"CnnPolicy"`` or ``"MultiInputPolicy"`` (SAC's, with IQL's actor and value
+        network, :mod:`sb3_cql.iql.policies`).
     :param env: the environment (for its spaces, and the default evaluation env).
-    :param dataset: a Minari dataset, its id, or a filled ``ReplayBuffer``; ``None`` for an empty buffer of
-        ``buffer_size``. A missing standard id is collected first (:func:`sb3_cql.data.ensure_dataset`).
+    :param dataset: a Minari dataset, its id (a missing standard one is collected first), or a filled
+        ``ReplayBuffer``; ``None`` for an empty buffer of ``buffer_size``.
     :param expectile: the value's expectile of Q over the data's actions, in [0.5, 1): 0.5 is SARSA's mean, higher is
         closer to the best action the data show.
     :param temperature: inverse temperature of the advantage weights (0: plain behaviour cloning).
     :param max_weight: the largest advantage weight.
-    :param actor_loss_type: ``"awr"`` (the paper's advantage-weighted regression) or ``"ddpg_awr"`` (the critics'
-        gradient at the actor's action, anchored to the data's actions by the advantage weights).
+    :param actor_loss_type: ``"awr"`` (the paper's) or ``"ddpg_awr"`` (the critics' gradient at the actor's action,
+        anchored to the data's actions by the advantage weights).
     :param actor_bc_weight: with ``"ddpg_awr"``, the anchor's weight against the critics' normalised value, as CQL's.
     :param q_agg: how the target twins combine into the value's target and the advantages: ``"min"`` (the
-        references') or ``"mean"`` (best-of-N ranks by the minimum either way).
-    :param target_floor: the least TD target, in the critics' units: a target below it is raised to it; ``None``
-        (the references') leaves the targets as they are.
+        references') or ``"mean"``.
+    :param target_floor: the least TD target, in the critics' units; ``None`` (the references'): no floor.
     :param actor_average_tau: act with an exponential moving average of the actor, moved towards it by this Polyak
         coefficient after each of its steps (saved with the model); ``None`` (the references'): act with the actor.
     :param normalize_observations: z-score the observations with the dataset's statistics inside the policy;
         ``False`` (the references') reads them raw; ``None`` z-scores them for an ``MlpPolicy`` on Box observations.
-    :param kwargs: the offline base's keywords (:class:`~sb3_cql.common.OfflineSAC`: ``learning_rate`` (the critics'
-        and the value network's), ``actor_learning_rate``, ``buffer_size``, ``online_fraction``, ``online_buffer_size``,
-        ``learning_starts``, ``deterministic_rollouts``, ``action_chunk``, ``best_of_n``, ``best_of_n_scale``,
-        ``reward_scale``, ``reward_bias``, ``policy_kwargs``) and SAC's but its entropy's (``batch_size``, ``tau``,
-        ``gamma``, ``target_update_interval``, ``train_freq``, ``gradient_steps``, ``action_noise``,
-        ``replay_buffer_class``, ``replay_buffer_kwargs``, ``n_steps``, ``stats_window_size``, ``tensorboard_log``,
-        ``verbose``, ``seed``, ``device``).
+    :param kwargs: the offline base's keywords (:class:`~sb3_cql.common.OfflineSAC`; ``learning_rate`` is the
+        critics' and the value network's) and SAC's but its entropy's.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -129,7 +107,7 @@ class IQL(OfflineSAC):
 
     @classmethod
     def known_keywords(cls) -> set[str]:
-        """The offline base's keywords and SAC's, but those of SAC's entropy term."""
+        """The offline base's keywords and SAC's, but its entropy term's."""
         return super().known_keywords() - set(ENTROPY_KEYWORDS)
 
     def _check_settings(self) -> None:
@@ -163,10 +141,8 @@ class IQL(OfflineSAC):
         self.value_net = self.policy.value_net
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """IQL's update (the class docstring), ``gradient_steps`` times: :meth:`value_loss`, :meth:`actor_loss`,
-        :meth:`compute_target` and :meth:`critic_loss`, then the targets' Polyak step. Logs SB3's ``train/actor_loss``
-        and ``train/critic_loss``, ``train/value_loss`` and IQL's ``train/iql_q_data``, ``train/iql_value``,
-        ``train/iql_advantage`` and ``train/iql_weight`` (the mean advantage weight)."""
+        """IQL's update (the class docstring), ``gradient_steps`` times. Logs ``train/actor_loss``,
+        ``train/critic_loss``, ``train/value_loss`` and ``train/iql_*`` (``iql_weight``: the mean advantage weight)."""
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.critic.optimizer, self.value_net.optimizer])
         update_learning_rate(self.actor.optimizer, self.actor_lr_schedule(self._current_progress_remaining))
@@ -221,28 +197,25 @@ class IQL(OfflineSAC):
     # The value.
 
     def target_q_values(self, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
-        """``Q'(s, a)``: the target twins' values of ``actions``, combined by ``q_agg`` (their minimum or their mean),
-        ``(batch, 1)``; the value's target and the advantages."""
+        """``Q'(s, a)``, ``(batch, 1)``: the target twins' values combined by ``q_agg``."""
         q_values = th.cat(self.critic_target(observations, actions), dim=1)
         if self.q_agg == "mean":
             return q_values.mean(dim=1, keepdim=True)
         return q_values.min(dim=1, keepdim=True).values
 
     def state_values(self, observations: th.Tensor) -> th.Tensor:
-        """``V(s)`` as the advantages and the TD target read it: the value network's output, ``(batch, 1)``."""
+        """``V(s)`` as the advantages and the TD target read it, ``(batch, 1)``."""
         return self.value_net(observations)
 
     def value_loss(self, replay_data: ReplayBufferSamples, q_data: th.Tensor) -> th.Tensor:
-        """``L_V``: the expectile regression of ``V(s)`` on ``q_data``, the batch's ``Q'(s, a)``
-        (:func:`expectile_loss`)."""
+        """The expectile regression of ``V(s)`` on ``q_data``, the batch's ``Q'(s, a)`` (:func:`expectile_loss`)."""
         return expectile_loss(q_data - self.value_net(replay_data.observations), self.expectile)
 
     # The actor.
 
     def actor_loss(self, replay_data: ReplayBufferSamples, weights: th.Tensor, logs: dict[str, list[float]]) -> th.Tensor:
-        """``L_pi`` from the advantage weights ``w`` of the batch's actions, ``(batch,)``: advantage-weighted regression,
-        ``-mean(w * log pi(a | s))``, or with ``actor_loss_type="ddpg_awr"`` :meth:`ddpg_actor_loss` with the anchor
-        weighted by ``w`` over the batch's mean weight (so ``actor_bc_weight`` keeps its scale)."""
+        """``-mean(w * log pi(a | s))`` for the advantage weights ``w``, ``(batch,)``; with ``"ddpg_awr"``,
+        :meth:`ddpg_actor_loss` with the anchor weighted by ``w / mean(w)``."""
         if self.actor_loss_type == "ddpg_awr":
             return self.ddpg_actor_loss(replay_data, weights / weights.mean(), logs)
         return -(weights * self.actor.log_prob_of(replay_data.observations, replay_data.actions)).mean()
@@ -251,11 +224,8 @@ class IQL(OfflineSAC):
         self, replay_data: ReplayBufferSamples, imitation_weights: th.Tensor, logs: dict[str, list[float]]
     ) -> th.Tensor:
         """TD3+BC's actor loss with each sample's imitation weighted: ``-mean(Q) / mean(|Q|) + actor_bc_weight *
-        mean(imitation_weights * |tanh(mu(s)) - a|^2 / action_dim)``, ``Q`` the critics' minimum at the actor's
-        deterministic action and the denominator detached (on a scale of 1 whatever the rewards), plus the likelihood
-        of the data's actions under the spread around the detached mean (only the actor's samples and best-of-N use
-        the spread). The critics' gradient refines the action while the imitation leans to the data's better actions.
-        Logs ``train/actor_bc_loss``, the imitation unweighted."""
+        mean(imitation_weights * |tanh(mu(s)) - a|^2 / action_dim)`` (the denominator detached), plus the likelihood
+        of the data's actions under the spread around the detached mean. Logs ``train/actor_bc_loss``, unweighted."""
         mean_actions, log_std, _ = self.actor.get_action_dist_params(replay_data.observations)
         actions_pi = th.tanh(mean_actions)
         q_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1).min(dim=1).values
@@ -267,29 +237,25 @@ class IQL(OfflineSAC):
         return q_loss + self.actor_bc_weight * (imitation_weights * squared_errors).mean() + spread_loss
 
     def update_actor_average(self) -> None:
-        """With ``actor_average_tau``, move the average the model acts with towards the actor just updated:
-        ``average = (1 - actor_average_tau) * average + actor_average_tau * actor``."""
+        """With ``actor_average_tau``, Polyak-move the average the model acts with towards the actor."""
         if self.actor_average_tau is not None:  # the policy then keeps an average (_setup_model)
             polyak_update(self.actor.parameters(), self.policy.actor_average.parameters(), self.actor_average_tau)
 
     # The critics.
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
-        """The critics' TD target, ``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`; the
-        samples' ``discounts`` for n-step returns, else ``gamma``), raised to ``target_floor`` where it is set."""
+        """``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`), raised to ``target_floor``."""
         next_values = self.state_values(replay_data.next_observations)
         target = self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
         return target if self.target_floor is None else target.clamp(min=self.target_floor)
 
     def critic_loss(self, replay_data: ReplayBufferSamples, target_q_values: th.Tensor) -> th.Tensor:
-        """``L_Q``: each critic's mean squared error to the TD target at the data's actions, summed over the twins (the
-        references' full errors, not SAC's halved ones)."""
+        """Each critic's mean squared error to the TD target at the data's actions, summed (not SAC's halved)."""
         current_q_values = self.critic(replay_data.observations, replay_data.actions)
         return sum(F.mse_loss(current_q, target_q_values) for current_q in current_q_values)
 
     def _step(self, optimizer: th.optim.Optimizer, loss: th.Tensor, description: str) -> float:
-        """One optimizer step on ``loss``, refused (:class:`~sb3_cql.common.TrainingDivergedError`) before it is taken
-        if the loss is NaN or infinite; the loss as a number."""
+        """One optimizer step on ``loss`` unless it is not finite (:class:`~sb3_cql.common.TrainingDivergedError`)."""
         hint = "try a lower learning_rate, a lower temperature, or rewards on a smaller scale"
         value = finite_loss_value(loss, description, self.num_timesteps + 1, hint)
         optimizer.zero_grad()

@@ -1,11 +1,5 @@
 """IQL's policies: SAC's actor and twin critics (:class:`~sb3_cql.common.policies.OfflinePolicy`) with a state-value
-network beside them, and the actor's distribution as the references fit it.
-
-- :class:`ValueNetwork`: ``V(s)``, an MLP of the critics' architecture on its own features extractor.
-- :class:`IQLActor`: SAC's ``Actor`` whose distribution is the references' for advantage-weighted regression
-  (ikostrikov/implicit_q_learning, d3rlpy): a Gaussian with mean ``tanh(mu)`` and one learned spread per action
-  dimension, the same at every state, its samples clipped to [-1, 1]. Its deterministic action is SAC's, ``tanh(mu)``.
-"""
+network (:class:`ValueNetwork`), and the actor's distribution as the references fit it (:class:`IQLActor`)."""
 
 from __future__ import annotations
 
@@ -26,18 +20,9 @@ __all__ = ["CnnPolicy", "IQLActor", "IQLPolicy", "MlpPolicy", "MultiInputPolicy"
 
 
 class ValueNetwork(BaseModel):
-    """The state value ``V(s)``: ``net_arch`` hidden layers on the features of ``features_extractor``, one output.
-
-    :param observation_space: the observation space.
-    :param action_space: the action space (SB3's ``BaseModel`` keeps it; V does not read actions).
-    :param net_arch: the hidden layers' sizes.
-    :param features_extractor: this network's own features extractor.
-    :param features_dim: its output size.
-    :param activation_fn: the hidden layers' activation.
-    :param layer_norm: a LayerNorm after each hidden layer, before its activation (as the critics' with
-        ``critic_layer_norm``).
-    :param normalize_images: SB3's scaling of image observations.
-    """
+    """The state value ``V(s)``: ``net_arch`` hidden layers (``activation_fn``; with ``layer_norm`` a LayerNorm before
+    each activation, as the critics' with ``critic_layer_norm``) on the features of ``features_extractor`` (of
+    ``features_dim``), one output. The other arguments are SB3's ``BaseModel``'s."""
 
     def __init__(
         self,
@@ -73,14 +58,9 @@ LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
 class IQLActor(Actor):
     """SAC's ``Actor`` with the references' distribution for advantage-weighted regression: ``N(tanh(mu), std)``,
-    samples clipped to [-1, 1] (:meth:`log_prob_of`, :meth:`forward`). The data's actions at the bounds of [-1, 1] (a
-    gripper's) keep a finite likelihood, where a squashed Gaussian's would need an infinite mean.
-
-    ``std`` is a parameter per action dimension, not SAC's head on the state (``log_std_logits``, as d3rlpy's
-    ``use_std_parameter``): ``log std = LOG_STD_MIN + sigmoid(logit) * (LOG_STD_MAX - LOG_STD_MIN)``, bounded with
-    a gradient everywhere. SAC's head is clamped at ``log std = 2``, past which it gets no gradient: under
-    advantage weights a head that overshoots there stays at ``std = 7.4`` for good, and its samples and the mean it
-    was fitted with are noise."""
+    samples clipped to [-1, 1], so data actions at the bounds keep a finite likelihood. ``std`` is one parameter per
+    action dimension (``log_std_logits``, as d3rlpy's ``use_std_parameter``), ``log std = LOG_STD_MIN +
+    sigmoid(logit) * (LOG_STD_MAX - LOG_STD_MIN)``: bounded with a gradient everywhere, unlike SAC's clamped head."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)  # (use_sde is refused by the offline base)
@@ -112,17 +92,11 @@ def gaussian_actions(mean_actions: th.Tensor, log_std: th.Tensor, noise: th.Tens
 
 
 class IQLPolicy(OfflinePolicy):
-    """SAC's policy (``MlpPolicy``, optionally on action chunks and acting by best-of-N:
-    :class:`~sb3_cql.common.policies.OfflinePolicy`) with :class:`IQLActor` and a :class:`ValueNetwork`
-    (``value_net``, its own Adam optimizer at the critics' learning rate) of the critics' architecture.
+    """:class:`~sb3_cql.common.policies.OfflinePolicy` with :class:`IQLActor` and a :class:`ValueNetwork`
+    (``value_net``, with its own optimizer at the critics' learning rate) of the critics' architecture.
 
-    With ``average_actor`` it also keeps ``actor_average``, an :class:`IQLActor` that starts as a copy of the actor,
-    gets no gradient, and is the one the policy acts with (:attr:`acting_actor`); the algorithm moves it towards the
-    actor after each of the actor's steps (IQL's ``actor_average_tau``). Both are saved with the policy.
-
-    :param average_actor: keep and act with ``actor_average``.
-    :param args: :class:`~sb3_cql.common.policies.OfflinePolicy`'s arguments.
-    :param kwargs: its keywords.
+    :param average_actor: also keep ``actor_average``, a copy of the actor without gradients that the policy acts with
+        (:attr:`acting_actor`) and IQL's ``actor_average_tau`` moves towards the actor.
     """
 
     value_net: ValueNetwork
@@ -173,8 +147,7 @@ class IQLPolicy(OfflinePolicy):
         return {**super()._get_constructor_parameters(), "average_actor": self.average_actor}
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """``nn.Module``'s; parameters saved without an average (a model trained without ``actor_average_tau``,
-        loaded with it) start the average as a copy of their actor."""
+        """``nn.Module``'s; parameters saved without an average start the average as a copy of their actor."""
         if self.actor_average is not None and not any(key.startswith("actor_average.") for key in state_dict):
             average = {
                 "actor_average." + key[len("actor.") :]: value for key, value in state_dict.items() if key.startswith("actor.")
@@ -201,5 +174,4 @@ class CnnPolicy(IQLPolicy, sac_policies.CnnPolicy):
 
 
 class MultiInputPolicy(IQLPolicy, sac_policies.MultiInputPolicy):
-    """SAC's ``MultiInputPolicy`` (``CombinedExtractor`` features, Dict observations) with IQL's actor and value
-    network."""
+    """SAC's ``MultiInputPolicy`` (Dict observations) with IQL's actor and value network."""
