@@ -27,10 +27,6 @@ class Panda:
     """A fixed-base Panda (``franka_panda/panda.urdf``) in a :class:`Simulator`, driven by 9 joint targets (7 arm
     joints in rad, 2 finger joints in m): the action itself (``"absolute"``) or the joint positions plus the action in
     [-1, 1] times ``arm_max_delta`` / ``finger_max_delta`` (``"delta"``), clipped to the joint limits.
-
-    :param sim: the simulator to load the robot into.
-    :param config: motor forces and delta limits.
-    :param action_mode: ``"absolute"`` or ``"delta"``.
     """
 
     def __init__(self, sim: Simulator, config: GraspConfig, action_mode: str = "absolute") -> None:

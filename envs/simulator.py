@@ -63,14 +63,8 @@ class _BulletClient(BulletClient):
 
 
 class Simulator:
-    """One PyBullet world: a ``BulletClient`` (DIRECT unless ``render_mode == "human"``), its time step and camera.
-
-    :param timestep: physics time step (s).
-    :param substeps: physics steps per call of :meth:`step`.
-    :param render_mode: ``"human"`` opens PyBullet's GUI; anything else is headless.
-    :param render_width: width of :meth:`render` frames (pixels).
-    :param render_height: height of :meth:`render` frames (pixels).
-    """
+    """One PyBullet world: a ``BulletClient`` (its GUI for ``render_mode="human"``, else DIRECT), its physics
+    ``timestep`` (s), ``substeps`` a :meth:`step`, and a camera of :meth:`render` frames (pixels)."""
 
     def __init__(
         self,

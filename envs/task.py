@@ -19,11 +19,7 @@ TRAY_FLOOR_HEIGHT = 0.015
 class GraspTask:
     """Pick the cylinder (dropped upright at a random position and yaw) out of the tray and lift it, held by both
     fingers, to ``success_height``; with ``force_magnitude``, a push for one step the first time it rises to
-    ``force_height``; with ``randomize_physics``, the physics sampled at every reset.
-
-    :param sim: the simulator to build the scene in.
-    :param robot: the robot whose fingers must hold the object.
-    :param config: the physical parameters.
+    ``force_height``; with ``randomize_physics``, the physics sampled at every reset. The scene is built in ``sim``.
     """
 
     def __init__(self, sim: Simulator, robot: Panda, config: GraspConfig) -> None:
