@@ -1,21 +1,7 @@
-"""Signals and child processes: Ctrl-C and SIGTERM in the package's commands, work held back from them, processes that
-die with their parent, and the local worker pool that the dataset collection and the protocol share.
-
-Commands. ``python -m`` imports a command's packages before it runs the command's module: the package's
-``__init__`` calls :func:`quiet_command_startup`, which quiets the start-up of the :data:`COMMANDS` (one line and the
-shell's status, never a traceback, from the first line of the program on: its imports take seconds), and each of
-them calls :func:`started` once its imports are done (:func:`run_command`); from then on Ctrl-C is Python's
-``KeyboardInterrupt`` again, and SIGTERM too, for the command to end on its own line saying what it kept.
-
-Work held back. :func:`interrupts_deferred` holds Ctrl-C and SIGTERM back while a block runs (a write, a gradient
-step) and acts on them after it; :func:`interrupts_noted` notes one where Python could drop its
-``KeyboardInterrupt``; :func:`interrupts_blocked` blocks them in the kernel while processes start.
-
-Child processes. A :class:`WorkerPool` worker, and a command it starts (:func:`child_command`), die with their parent
-(:func:`die_with_parent`): a killed command takes them along instead of leaving them to write beside a new run.
-
-This module is imported by the package's ``__init__`` before a command's imports: what the pool needs
-(``concurrent.futures``, ``multiprocessing``: a tenth of a second) loads when a pool is made.
+"""Signals and child processes: Ctrl-C and SIGTERM in the package's commands (:func:`quiet_command_startup` until
+:func:`started`, then ``KeyboardInterrupt``), work held back from them (:func:`interrupts_deferred`,
+:func:`interrupts_noted`, :func:`interrupts_blocked`), processes that die with their parent (:func:`die_with_parent`),
+and the local :class:`WorkerPool`. Imported by the package's ``__init__``: what the pool needs loads when one is made.
 """
 
 from __future__ import annotations
@@ -48,19 +34,17 @@ PR_SET_PDEATHSIG = 1
 
 def quiet_command_startup() -> None:
     """:func:`quiet_startup` if this process is ``python -m`` one of :data:`COMMANDS` still importing its packages
-    (``sys.argv[0]`` is ``-m`` until the module runs); nothing otherwise."""
+    (``sys.argv[0]`` is ``-m`` until the module runs)."""
     argv = getattr(sys, "orig_argv", None) or []
     if getattr(sys, "argv", [""])[:1] != ["-m"] or "-m" not in argv[:-1]:
         return
-    module = argv[argv.index("-m") + 1]
-    module = module.removesuffix(".__main__")
+    module = argv[argv.index("-m") + 1].removesuffix(".__main__")
     if module in COMMANDS:
         quiet_startup(f"python -m {module}")
 
 
 def quiet_startup(prog: str) -> None:
-    """Until :func:`started`, Ctrl-C or SIGTERM ends the program with one line (``PROG: interrupted while starting``)
-    and status 130 or 143: nothing has been done that could be kept. Only the main thread can set handlers."""
+    """Until :func:`started`, Ctrl-C or SIGTERM ends the program with one line and status 130 or 143."""
 
     def end(signum: int, frame: Any) -> None:
         sys.stderr.write(f"{prog}: interrupted while starting: nothing done\n")
@@ -79,8 +63,7 @@ def started() -> None:
 
 
 def keyboard_interrupt(signum: int) -> KeyboardInterrupt:
-    """The ``KeyboardInterrupt`` that a signal of :data:`INTERRUPTS` raises; a SIGTERM's is marked ``terminated``, for
-    the exit status :func:`exit_status` gives."""
+    """The ``KeyboardInterrupt`` a signal of :data:`INTERRUPTS` raises; a SIGTERM's is marked ``terminated``."""
     interrupt = KeyboardInterrupt()
     if signum == signal.SIGTERM:
         interrupt.terminated = True  # type: ignore[attr-defined]
@@ -88,8 +71,7 @@ def keyboard_interrupt(signum: int) -> KeyboardInterrupt:
 
 
 def terminate_as_interrupt() -> None:
-    """SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does (a ``kill PID`` then ends the command as Ctrl-C would,
-    keeping what it keeps), marked ``terminated`` (:func:`keyboard_interrupt`)."""
+    """SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does, marked ``terminated`` (:func:`keyboard_interrupt`)."""
 
     def interrupt(signum: int, frame: Any) -> None:
         raise keyboard_interrupt(signum)
@@ -103,9 +85,8 @@ def exit_status(interrupt: BaseException) -> int:
 
 
 def run_command(main: Any) -> None:
-    """Run a command line's ``main()`` as one of :data:`COMMANDS` runs it: Ctrl-C raises ``KeyboardInterrupt`` again
-    (:func:`started`) and SIGTERM too (:func:`terminate_as_interrupt`), for ``main`` to say what it kept; once it
-    returns or fails, a second Ctrl-C while the program exits prints no traceback either."""
+    """Run a command's ``main()`` with Ctrl-C and SIGTERM raising ``KeyboardInterrupt``; once it returns or fails,
+    Ctrl-C is ignored while the program exits."""
     started()
     terminate_as_interrupt()
     try:
@@ -118,9 +99,8 @@ def run_command(main: Any) -> None:
 
 
 def _taken(signum: int, handler: Any, sigterm_as_interrupt: bool) -> bool:
-    """Whether a signal whose handler is ``handler`` is held or noted: one with a handler (Python's for Ctrl-C raises
-    ``KeyboardInterrupt``), and with ``sigterm_as_interrupt`` a SIGTERM left to its default action too. A signal
-    ignored, or left to its default otherwise, is not."""
+    """Whether a signal with ``handler`` is held or noted: one with a handler, and with ``sigterm_as_interrupt`` a
+    SIGTERM left to its default action."""
     return callable(handler) or (sigterm_as_interrupt and signum == signal.SIGTERM and handler == signal.SIG_DFL)
 
 
@@ -134,17 +114,13 @@ def _act_as_before(signum: int, handler: Any, frame: Any) -> None:
 
 @contextlib.contextmanager
 def interrupts_deferred(reraise: bool = True, sigterm_as_interrupt: bool = False) -> Iterator[None]:
-    """Hold Ctrl-C (and a SIGTERM that has a handler) back while the block runs, so that what it does is done whole (a
-    file written, a gradient step: every optimiser of the model steps, or none), then act as the first one would have
-    if ``reraise``: its handler (Python's raises ``KeyboardInterrupt``) runs once the block is done.
+    """Hold Ctrl-C (and a SIGTERM that has a handler) back while the block runs, so that what it does is done whole,
+    then act on the first one as its handler would have. Only the main thread receives signals: elsewhere the block
+    just runs.
 
-    :param reraise: act on the first signal held after the block; ``False``: drop them (cleaning up after an
-        interrupt, when more Ctrl-C change nothing).
-    :param sigterm_as_interrupt: hold a SIGTERM left to its default action too (which would end the process at once,
-        without a word), and raise it afterwards as a ``KeyboardInterrupt`` marked ``terminated``.
-
-    A signal ignored, or left to its default action otherwise, is not held; only the main thread receives signals:
-    in another one, the block just runs.
+    :param reraise: act on the first signal held after the block; ``False``: drop them.
+    :param sigterm_as_interrupt: hold a SIGTERM left to its default action too, raised afterwards as a
+        ``KeyboardInterrupt`` marked ``terminated``.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -166,16 +142,9 @@ def interrupts_deferred(reraise: bool = True, sigterm_as_interrupt: bool = False
 
 @contextlib.contextmanager
 def interrupts_noted(sigterm_as_interrupt: bool = False) -> Iterator[Callable[[], int]]:
-    """Act on Ctrl-C as the handler there was does (Python's raises ``KeyboardInterrupt``), and note it: the block gets
-    a function giving the first signal noted, 0 for none. Python drops an exception raised in a ``__del__``
-    (PyBullet's ``BulletClient`` disconnects in one, which a garbage collection can run at any moment), so a loop that
-    checks the note still stops (raising :func:`keyboard_interrupt` of it).
-
-    :param sigterm_as_interrupt: take a SIGTERM left to its default action too (which would end the process without
-        a word), raising ``KeyboardInterrupt`` marked ``terminated``.
-
-    Only the main thread receives signals; elsewhere, or with the signals ignored, nothing is noted.
-    """
+    """Act on Ctrl-C as its handler does, and note it: the block gets a function giving the first signal noted, 0 for
+    none, so a loop still stops where Python drops the ``KeyboardInterrupt`` (raised in a ``__del__``, as PyBullet's
+    ``BulletClient`` disconnects). ``sigterm_as_interrupt`` as :func:`interrupts_deferred`'s."""
     if threading.current_thread() is not threading.main_thread():
         yield lambda: 0
         return
@@ -198,8 +167,8 @@ def interrupts_noted(sigterm_as_interrupt: bool = False) -> Iterator[Callable[[]
 
 @contextlib.contextmanager
 def interrupts_blocked() -> Iterator[None]:
-    """Block :data:`INTERRUPTS` in this thread while the block runs (POSIX; elsewhere nothing): processes started
-    meanwhile inherit the block, and a signal arriving meanwhile is delivered after it."""
+    """Block :data:`INTERRUPTS` in this thread while the block runs (POSIX): processes started meanwhile inherit the
+    block, and a signal arriving meanwhile is delivered after it."""
     if not hasattr(signal, "pthread_sigmask"):
         yield
         return
@@ -214,9 +183,7 @@ def interrupts_blocked() -> Iterator[None]:
 
 
 def die_with_parent(parent: int) -> None:
-    """Linux: have the kernel kill this process (``SIGKILL``) when its parent dies, so that a killed command takes
-    its worker processes along instead of leaving them waiting or writing beside a new run. ``parent``: the
-    expected parent's pid (exit now if it is already gone). Elsewhere nothing."""
+    """Linux: have the kernel kill this process when its parent ``parent`` dies (exit now if it is already gone)."""
     if not sys.platform.startswith("linux"):
         return
     import ctypes
@@ -227,9 +194,8 @@ def die_with_parent(parent: int) -> None:
 
 
 def child_command() -> Callable[[], None]:
-    """A ``preexec_fn`` for :mod:`subprocess`: the command takes Ctrl-C and SIGTERM as a shell would give them (their
-    default actions: a :class:`WorkerPool` worker ignores them, and an ignored signal stays ignored across ``exec``)
-    and dies with this process (:func:`die_with_parent`)."""
+    """A ``preexec_fn`` for :mod:`subprocess`: the command takes Ctrl-C and SIGTERM at their default actions (a
+    :class:`WorkerPool` worker ignores them) and dies with this process."""
     return partial(_start_child_command, os.getpid())
 
 
@@ -240,9 +206,8 @@ def _start_child_command(parent: int) -> None:
 
 
 def _start_worker(parent: int, initializer: Callable[..., Any] | None, initargs: tuple[Any, ...]) -> None:
-    """Set up a :class:`WorkerPool` worker: it dies with ``parent``, and ignores Ctrl-C and SIGTERM (no traceback from
-    them: they reach every process of a terminal's group, and the parent stops its workers itself). It started with
-    them blocked (:meth:`WorkerPool.submit`), so one sent before this point is dropped too. Then ``initializer``."""
+    """Set up a :class:`WorkerPool` worker: it dies with ``parent`` and ignores Ctrl-C and SIGTERM (the parent stops
+    its workers), then ``initializer``."""
     die_with_parent(parent)
     for signum in INTERRUPTS:
         signal.signal(signum, signal.SIG_IGN)
@@ -253,15 +218,9 @@ def _start_worker(parent: int, initializer: Callable[..., Any] | None, initargs:
 
 
 class WorkerPool:
-    """``workers`` local worker processes, a ``concurrent.futures`` executor (``submit`` returns a ``Future``):
-
-    - spawned, not forked: a parent holding torch threads or a PyBullet client must not be copied, and no lock is
-      inherited; an executor, not a ``multiprocessing.Pool``: a killed worker fails the pending futures with
-      ``BrokenProcessPool`` instead of hanging them;
-    - each worker dies with this process and ignores Ctrl-C and SIGTERM: this process stops its workers itself;
-    - leaving the ``with`` block waits for the workers to end; leaving it by an exception (Ctrl-C, a failure) kills
-      them at once instead, not waited for through the tasks they run (a second Ctrl-C meanwhile changes nothing),
-      each taking its :func:`child_command` processes along.
+    """``workers`` spawned worker processes, a ``concurrent.futures`` executor (a killed worker fails the pending
+    futures instead of hanging them). Each dies with this process and ignores Ctrl-C and SIGTERM; leaving the ``with``
+    block waits for them, leaving it by an exception kills them at once.
 
     :param workers: worker processes.
     :param initializer: called in each worker once it is set up, with ``initargs`` (what its tasks share).
@@ -276,8 +235,7 @@ class WorkerPool:
         self._executor = ProcessPoolExecutor(workers, context, _start_worker, (os.getpid(), initializer, initargs))
 
     def submit(self, function: Callable[..., Any], *args: Any) -> Future:
-        """Run ``function(*args)`` in a worker. Ctrl-C and SIGTERM are blocked meanwhile: a worker started here
-        inherits the block until it ignores them."""
+        """Run ``function(*args)`` in a worker (a worker started here inherits the block of the interrupts)."""
         with interrupts_blocked():
             return self._executor.submit(function, *args)
 
@@ -292,10 +250,8 @@ class WorkerPool:
             self._kill()
 
     def _kill(self) -> None:
-        """Shut the executor down without waiting for its tasks: kill its workers (they ignore SIGTERM), then wait for
-        the executor to fail the pending futures and close its pipes. No future is cancelled first: in Python 3.11,
-        the executor's thread raises InvalidStateError on a cancelled one when it finds its workers gone, and exiting
-        before that thread is done can write to a pipe it closes (EBADF)."""
+        """Kill the workers, then wait for the executor to fail the pending futures and close its pipes. No future is
+        cancelled first: Python 3.11's executor thread raises InvalidStateError on one when it finds its workers gone."""
         for process in list((getattr(self._executor, "_processes", None) or {}).values()):
             process.kill()
         self._executor.shutdown(wait=True)

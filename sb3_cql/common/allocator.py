@@ -1,9 +1,5 @@
-"""Keep freed memory in the process instead of handing it back to the OS after every CQL step.
-
-glibc serves blocks above its mmap threshold with fresh ``mmap`` pages and returns them on ``free``. A CQL step at the
-thesis's configuration allocates dozens of 10,912 x 256 activations (11 MB each), so with glibc's defaults every step
-page-faults ~10,000 fresh pages, which costs ~20% of the step on our machines (``benchmarks/cql_speed.py``).
-Raising the mmap and trim thresholds lets the heap reuse those blocks. Equivalent to starting Python with
+"""Keep freed memory in the process instead of handing it back to the OS after every CQL step: with glibc's defaults
+its 11 MB activations are fresh ``mmap`` pages each step, ~20% of the step (``benchmarks/cql_speed.py``). As
 ``MALLOC_MMAP_THRESHOLD_=33554432 MALLOC_TRIM_THRESHOLD_=268435456``.
 """
 

@@ -1,7 +1,5 @@
-"""Replay buffers of offline training and online fine-tuning: one that also holds each transition's discounted
-return-to-go, for calibrated CQL (Cal-QL), and one that keeps the offline data beside the online transitions and
-samples a set fraction of every batch from each (RLPD). Both sample SB3's n-step returns (``NStepReplayBuffer``)
-when their buffers do."""
+"""Replay buffers of offline training and online fine-tuning: action chunks, returns-to-go (Cal-QL), and offline data
+beside online transitions (RLPD)."""
 
 from __future__ import annotations
 
@@ -20,9 +18,8 @@ def with_n_step_returns(
     buffer: ReplayBuffer, n_steps: int, gamma: float, buffer_class: type[NStepReplayBuffer] = NStepReplayBuffer
 ) -> ReplayBuffer:
     """``buffer`` sampling SB3's ``n_steps``-step returns: for ``n_steps`` > 1, a plain ``ReplayBuffer``'s transitions
-    (its arrays, shared, not copied) in a ``buffer_class`` (SB3's ``NStepReplayBuffer``, or
-    :class:`ActionChunkReplayBuffer`); any other buffer (already n-step, or of a class of its own) as it is, as SB3
-    takes a custom ``replay_buffer_class``."""
+    (its arrays shared) in a ``buffer_class`` (``NStepReplayBuffer`` or :class:`ActionChunkReplayBuffer`); any other
+    buffer as it is."""
     if n_steps <= 1 or type(buffer) is not ReplayBuffer:
         return buffer
     if buffer.optimize_memory_usage:
@@ -34,20 +31,13 @@ def with_n_step_returns(
 
 
 class ActionChunkReplayBuffer(NStepReplayBuffer):
-    """SB3's ``NStepReplayBuffer`` whose samples carry the chunk of ``n_steps`` actions from each sampled step, for a
-    critic of action chunks (Q-chunking): ``actions`` are ``(batch, n_steps * action_dim)``, the stored actions of
-    steps ``t .. t + n_steps - 1`` one after the other; ``rewards``, ``discounts``, ``dones`` and
-    ``next_observations`` are SB3's n-step ones over the same steps. A chunk that reaches its episode's end (a
-    termination, a truncation, or the last transition written of an episode under way) is cut there as SB3 cuts the
-    n-step return, and the rest of it repeats the last action of the episode. Every stored step starts a chunk.
+    """SB3's ``NStepReplayBuffer`` (of one env) whose samples' ``actions`` are the chunks of ``n_steps`` stored actions
+    from each sampled step, ``(batch, n_steps * action_dim)``, for a critic of action chunks (Q-chunking); the rest are
+    SB3's n-step samples over the same steps. It stores one transition a step; :meth:`single_step_samples` samples
+    single actions.
 
-    The buffer stores one transition a step (``add`` as ``ReplayBuffer``'s), so SB3's own sampling of single actions
-    is :meth:`single_step_samples`. It holds the transitions of one env (``n_envs=1``).
-
-    :param args: ``NStepReplayBuffer``'s (``buffer_size``, ``observation_space``, ``action_space``, ...).
     :param n_steps: actions per chunk, and steps of the n-step return.
     :param gamma: discount factor.
-    :param kwargs: ``NStepReplayBuffer``'s.
     """
 
     def __init__(self, *args: Any, n_steps: int = 5, gamma: float = 0.99, **kwargs: Any) -> None:
@@ -60,8 +50,8 @@ class ActionChunkReplayBuffer(NStepReplayBuffer):
         return samples._replace(actions=self.to_torch(self.chunk_actions(batch_inds)))
 
     def chunk_actions(self, batch_inds: np.ndarray) -> np.ndarray:
-        """The chunks of ``n_steps`` stored actions from rows ``batch_inds``, ``(len(batch_inds), n_steps *
-        action_dim)``, each cut at its episode's end where SB3's ``NStepReplayBuffer`` cuts the return, the last action
+        """The chunks of ``n_steps`` stored actions from rows ``batch_inds``, each cut at its episode's end where SB3's
+        ``NStepReplayBuffer`` cuts the return (a termination, a truncation, the last row written), the last action
         repeated after it."""
         steps = np.arange(self.n_steps)
         rows = (batch_inds[:, None] + steps) % self.buffer_size
@@ -78,8 +68,8 @@ class ActionChunkReplayBuffer(NStepReplayBuffer):
 
 
 def transposed_images(buffer: ReplayBuffer, observation_space: spaces.Space) -> ReplayBuffer:
-    """A copy of ``buffer`` (channel-last images) in ``observation_space``, its images channel-first as SB3's
-    ``VecTransposeImage`` gives them to a policy (``VecTransposeImage.transpose_image``)."""
+    """A copy of ``buffer`` in ``observation_space``, its channel-last images channel-first as SB3's
+    ``VecTransposeImage`` gives them to a policy."""
     from stable_baselines3.common.vec_env import VecTransposeImage
 
     kwargs: dict[str, Any] = {"handle_timeout_termination": buffer.handle_timeout_termination}
@@ -103,8 +93,7 @@ def transposed_images(buffer: ReplayBuffer, observation_space: spaces.Space) -> 
 
 class ReturnToGoSamples(NamedTuple):
     """SB3's ``ReplayBufferSamples`` and the return-to-go of each sampled state (``-inf`` where its episode has not
-    ended yet). ``rewards``, ``dones`` and ``discounts`` are SB3's n-step ones when the buffer samples n-step
-    returns (``discounts`` is ``None`` for one-step samples, as SB3's)."""
+    ended yet)."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -116,17 +105,9 @@ class ReturnToGoSamples(NamedTuple):
 
 
 def returns_to_go(rewards: np.ndarray, truncated: bool, gamma: float) -> np.ndarray:
-    """Discounted returns-to-go ``G_t = r_t + gamma * G_{t+1}`` of one whole episode, in float64.
-
-    A terminated episode (``truncated`` False) has ``G = 0`` after its last step. An episode cut by a time limit whose
-    rewards are all equal, such as a sparse-reward episode that never reached the goal, is taken to go on earning that
-    reward forever: ``G_t = r / (1 - gamma)`` at every step, as the Cal-QL paper does for failed episodes of sparse-
-    reward tasks (it assumes the agent would not succeed later). Any other cut episode counts its rewards up to the cut.
-
-    :param rewards: the episode's rewards, as the critics see them (after any scaling).
-    :param truncated: whether the episode ended by a time limit rather than by termination.
-    :param gamma: discount factor.
-    """
+    """Discounted returns-to-go ``G_t = r_t + gamma * G_{t+1}`` of one whole episode, in float64, ``G = 0`` after its
+    last step. An episode ``truncated`` by a time limit whose ``rewards`` (as the critics see them) are all equal
+    earns that reward forever, ``G_t = r / (1 - gamma)``, as the Cal-QL paper takes failed sparse-reward episodes."""
     rewards = np.asarray(rewards, dtype=np.float64)
     if truncated and len(rewards) > 0 and np.all(rewards == rewards[0]):
         return np.full(len(rewards), rewards[0] / (1.0 - gamma))
@@ -139,24 +120,15 @@ def returns_to_go(rewards: np.ndarray, truncated: bool, gamma: float) -> np.ndar
 
 
 class ReturnToGoReplayBuffer(NStepReplayBuffer):
-    """SB3's ``ReplayBuffer`` (its ``NStepReplayBuffer`` with ``n_steps`` > 1) with the discounted return-to-go of
-    every stored state, under the critics' reward transform ``reward_scale * reward + reward_bias``
-    (:func:`returns_to_go`). Samples are :class:`ReturnToGoSamples`: SB3's samples (one-step, or n-step returns with
-    their ``discounts``) and the return-to-go of each sampled state, which is the whole episode's from that state
-    whatever ``n_steps`` is.
-
-    Transitions added one step at a time (online interaction) get their returns-to-go when their episode ends
-    (``done``, a termination or, with ``TimeLimit.truncated`` in its info, a truncation); until then they read as
-    ``-inf``. A buffer filled in bulk (:meth:`from_replay_buffer`, or by writing its arrays) gets them from
-    :meth:`compute_returns_to_go`. It holds the transitions of one env (``n_envs=1``): SB3's sampling draws the env
-    of each sample inside ``_get_samples``, where the return-to-go could not follow it.
+    """SB3's ``NStepReplayBuffer`` (of one env; ``n_steps`` 1 samples as ``ReplayBuffer``) with the discounted
+    return-to-go (:func:`returns_to_go`) of every stored state under the critics' rewards ``reward_scale * reward +
+    reward_bias``, sampled as :class:`ReturnToGoSamples`. Transitions added one at a time get theirs when their
+    episode ends (``-inf`` until then); a buffer filled in bulk gets them from :meth:`compute_returns_to_go`.
 
     :param gamma: discount factor.
-    :param n_steps: steps of SB3's n-step returns in the samples (1: one-step samples, as ``ReplayBuffer``'s).
+    :param n_steps: steps of SB3's n-step returns in the samples.
     :param reward_scale: the critics' reward scale.
     :param reward_bias: the critics' reward bias.
-    :param args: ``ReplayBuffer``'s (``buffer_size``, ``observation_space``, ``action_space``, ...).
-    :param kwargs: ``ReplayBuffer``'s.
     """
 
     #: Buffers pickled before n-step samples were supported sample one-step returns.
@@ -184,23 +156,16 @@ class ReturnToGoReplayBuffer(NStepReplayBuffer):
 
     @classmethod
     def from_replay_buffer(
-        cls,
-        buffer: ReplayBuffer,
-        gamma: float,
-        reward_scale: float = 1.0,
-        reward_bias: float = 0.0,
-        n_steps: int | None = None,
+        cls, buffer: ReplayBuffer, gamma: float, reward_scale: float = 1.0, reward_bias: float = 0.0
     ) -> ReturnToGoReplayBuffer:
-        """A buffer holding ``buffer``'s transitions (its arrays, shared, not copied) and their returns-to-go.
-        Episodes are delimited by ``dones`` and ``timeouts``; a last episode without an end gets ``-inf``.
-        ``n_steps`` is ``buffer``'s own (1 for a plain ``ReplayBuffer``) unless given."""
+        """A buffer holding ``buffer``'s transitions (its arrays shared, its ``n_steps``) and their returns-to-go."""
         if buffer.optimize_memory_usage:
             raise ValueError("ReturnToGoReplayBuffer does not support optimize_memory_usage")
         if buffer.n_envs != 1:
             raise ValueError(f"ReturnToGoReplayBuffer holds the transitions of one env (n_envs=1), got n_envs={buffer.n_envs}")
         upgraded = cls.__new__(cls)
         upgraded.__dict__.update(buffer.__dict__)
-        upgraded.n_steps = n_steps if n_steps is not None else getattr(buffer, "n_steps", 1)
+        upgraded.n_steps = getattr(buffer, "n_steps", 1)
         upgraded.gamma, upgraded.reward_scale, upgraded.reward_bias = gamma, reward_scale, reward_bias
         upgraded.returns_to_go = np.full((buffer.buffer_size, buffer.n_envs), -np.inf, dtype=np.float32)
         upgraded.episode_starts = np.zeros(buffer.n_envs, dtype=np.int64)
@@ -208,8 +173,8 @@ class ReturnToGoReplayBuffer(NStepReplayBuffer):
         return upgraded
 
     def compute_returns_to_go(self) -> None:
-        """Returns-to-go of every ended episode in the buffer, read in storage order from the oldest transition
-        (``-inf`` for a trailing episode without an end; it continues where the next :meth:`add` writes)."""
+        """Returns-to-go of every ended episode in the buffer (``-inf`` for a trailing one without an end, which the
+        next :meth:`add` continues)."""
         size = self.size()
         order = (np.arange(size) + (self.pos if self.full else 0)) % self.buffer_size
         for env in range(self.n_envs):
@@ -251,8 +216,7 @@ class ReturnToGoReplayBuffer(NStepReplayBuffer):
         return ReturnToGoSamples(*base[:5], returns_to_go=returns, discounts=base.discounts)
 
     def start_new_episodes(self) -> None:
-        """The next :meth:`add` starts a new episode in every env: an episode left unfinished (the env was reset, as
-        when training resumes from a checkpoint) keeps ``-inf``, no bound."""
+        """The next :meth:`add` starts a new episode (the env was reset): an unfinished one keeps ``-inf``."""
         self.episode_starts[:] = self.pos
 
 
@@ -265,19 +229,13 @@ ONLINE_ATTRIBUTES = (
 
 
 class MixedReplayBuffer(ReplayBuffer):
-    r"""Offline data and online transitions side by side, sampled as RLPD does (Ball et al. 2023,
+    """Offline data and online transitions side by side, sampled as RLPD does (Ball et al. 2023,
     https://arxiv.org/abs/2302.02948): :meth:`add` stores in the ``online`` part, and every batch draws
-    ``round(online_fraction * batch_size)`` samples from it (none while it is empty) and the rest from the ``offline``
-    part. RLPD's symmetric sampling is ``online_fraction=0.5``.
+    ``round(online_fraction * batch_size)`` samples from it (none while it is empty), the rest from ``offline``.
 
-    The two parts are buffers of the same class (``ReplayBuffer``, or :class:`ReturnToGoReplayBuffer` for calibrated
-    CQL, whose online episodes get their returns-to-go when they end), of SB3's n-step returns if they are
-    ``NStepReplayBuffer``\ s. As a ``ReplayBuffer`` it is the online part, where :meth:`add` writes: its arrays
-    (``observations``, ``actions``, ...), ``pos``, ``full`` and ``buffer_size`` are the online part's, while
-    :meth:`size` and :meth:`sample` count both parts. Pickled (``save_replay_buffer``, a checkpoint's buffer), it keeps
-    the online transitions only, up to the filled size: the offline data come back from their dataset (``offline`` is
-    ``None`` until :meth:`set_offline`; :meth:`~sb3_cql.common.OfflineSAC.load_replay_buffer` puts the model's in).
-    ``copy.deepcopy`` copies both parts.
+    Both parts are buffers of one class. As a ``ReplayBuffer`` it is the online part (its arrays, ``pos``, ``full``,
+    ``buffer_size``), while :meth:`size` and :meth:`sample` count both. Pickled, it keeps the online transitions only
+    (``offline`` is ``None`` until :meth:`set_offline`); ``copy.deepcopy`` copies both parts.
 
     :param offline: the offline data.
     :param online: the empty (or resumed) buffer of online transitions; its ``buffer_size`` is their capacity.
@@ -387,13 +345,7 @@ def _concatenated(fields: tuple[Any, ...]) -> Any:
 
 
 def _online_attribute(name: str) -> property:
-    def get(self: MixedReplayBuffer) -> Any:
-        return getattr(self.online, name)
-
-    def set_(self: MixedReplayBuffer, value: Any) -> None:
-        setattr(self.online, name, value)
-
-    return property(get, set_, doc=f"The online part's ``{name}``.")
+    return property(lambda self: getattr(self.online, name), lambda self, value: setattr(self.online, name, value))
 
 
 for _name in ONLINE_ATTRIBUTES:

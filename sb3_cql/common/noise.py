@@ -1,12 +1,7 @@
 """Temporally correlated exploration noise for online fine-tuning, as SB3 ``ActionNoise``: one draw held for a whole
-action chunk (:class:`HeldActionNoise`), and pink noise (``pink-noise-rl``'s ``PinkActionNoise``, Eberhard et al.,
-"Pink Noise Is All You Need", ICLR 2023) made reproducible (:func:`pink_action_noise`).
-
-In delta actions a step moves a joint target by at most ``arm_max_delta`` (0.05 rad) times the action: N(0, 0.1) drawn
-afresh each step moves the wrist by about 0.1 x 0.05 x sqrt(100) = 0.05 rad (3 degrees) in 100 steps, where turning
-the hand to a fallen cylinder takes up to 90 degrees. Noise that keeps its sign for several steps moves it further:
-a draw held for ``hold`` steps by ``hold`` times as much per draw (sqrt(hold) times as far over 100 steps), pink noise
-further still (its power is concentrated at low frequencies).
+action chunk (:class:`HeldActionNoise`), and pink noise (Eberhard et al., ICLR 2023) made reproducible
+(:func:`pink_action_noise`). N(0, 0.1) drawn afresh each step turns the wrist by about 3 degrees in 100 delta
+actions, where a fallen cylinder takes up to 90: noise that keeps its sign moves it further.
 """
 
 from __future__ import annotations
@@ -18,9 +13,8 @@ __all__ = ["HeldActionNoise", "pink_action_noise"]
 
 
 class HeldActionNoise(ActionNoise):
-    """Each draw of ``noise`` repeated for ``hold`` consecutive calls: with ``hold`` the length of an action chunk,
-    one exploration draw per chunk (the chunk's actions all moved by the same offset). :meth:`reset` (SB3 calls it when
-    an episode ends, as a chunked policy starts a new chunk) makes the next call draw again, and resets ``noise``.
+    """Each draw of ``noise`` repeated for ``hold`` consecutive calls (one draw per action chunk); :meth:`reset` (at an
+    episode's end) makes the next call draw again.
 
     :param noise: the noise drawn once per ``hold`` calls (SB3's ``NormalActionNoise``, ...).
     :param hold: calls each draw is held for (1: ``noise`` itself).
@@ -49,9 +43,7 @@ class HeldActionNoise(ActionNoise):
 
 
 def pink_action_noise(sigma: float, action_dim: int, seq_len: int, seed: int | None = None) -> ActionNoise:
-    """``pink-noise-rl``'s ``PinkActionNoise`` (pink noise of scale ``sigma`` on each of ``action_dim`` dimensions,
-    sampled in sequences of ``seq_len`` steps: an episode's length) with a random generator seeded by ``seed``: the
-    package's default generator is unseeded, so a run with a seed would not repeat.
+    """``pink-noise-rl``'s ``PinkActionNoise`` with a generator seeded by ``seed`` (the package's is unseeded).
 
     :param sigma: the noise's standard deviation per dimension (in the scaled action space, [-1, 1]).
     :param action_dim: dimensions of the action space.

@@ -1,6 +1,5 @@
-"""Minari datasets assembled in the store's ``assembling/`` folder: a collection's episode files once all are written
-(:func:`assemble`, with :func:`collection_metadata`), or other datasets combined (:func:`mix_datasets`); then
-published in place of the dataset (:meth:`~sb3_cql.data.store.DatasetFiles.publish`)."""
+"""Minari datasets assembled in the store's ``assembling/`` folder from a collection's episode files (:func:`assemble`)
+or other datasets (:func:`mix_datasets`)."""
 
 from __future__ import annotations
 
@@ -37,8 +36,7 @@ def assemble(files: DatasetFiles, env: gym.Env, metadata: Callable[[list[bool]],
     data_bytes = sum(path.stat().st_size for _, path in episode_files)
     check_space(files, data_bytes + sum(map(len, (i for i, _ in episode_files))) * BYTES_PER_EPISODE, "its assembly")
     files.assembling.mkdir()
-    # With the spaces given, Minari makes no env of its own to read them (one it would drop at once: a PyBullet
-    # client's __del__, which drops a Ctrl-C that arrives while it disconnects).
+    # With the spaces given, Minari makes no env of its own (whose PyBullet __del__ could drop a Ctrl-C).
     storage = MinariStorage.new(files.assembling / "data", env.observation_space, env.action_space, env.spec,
                                 data_format="hdf5")  # fmt: skip
     successes = []

@@ -1,5 +1,4 @@
-"""What a collection will take, printed before it starts: about how long and how much disk, from measurements on
-this project's 2-core machine; and the check that the disk has room for it."""
+"""What a collection will take (about how long and how much disk), printed before it starts, and the disk check."""
 
 from __future__ import annotations
 
@@ -15,9 +14,7 @@ if TYPE_CHECKING:
     from sb3_cql.data.rollouts import CollectionSpec
     from sb3_cql.data.store import DatasetFiles
 
-# The estimates a collection prints before it starts, measured on this project's 2-core machine. "About" is meant:
-# other jobs on the CPUs slow a collection down (beside them, the collections of 2026-12-01 below ran at 30 to 75% of
-# the rate below).
+# Measured on this project's 2-core machine; other jobs on the CPUs slow a collection (to 30-75% on 2026-12-01).
 
 #: Mean transitions of an episode by task and policy: the PD controllers finish most Panda-v0 episodes in ~178 steps,
 #: the noisy ones run most of them to the 700-step limit. Means over ``python -m sb3_cql.data collect --env ENV
@@ -51,9 +48,7 @@ CLEAN_ACTION_BYTES_PER_TRANSITION = 45
 
 def estimate(spec: CollectionSpec, n_episodes: int, workers: int) -> tuple[int, float | None, int]:
     """About how many transitions, seconds and bytes of disk ``n_episodes`` episodes of ``spec`` take with
-    ``workers`` processes (one per CPU at most), at the speeds measured on this project's 2-core machine: from
-    :data:`EPISODE_STEPS`, :data:`TRANSITIONS_PER_S`, :data:`WORKER_START_S` and the disk constants. A model policy's
-    episodes are counted at the time limit (at most) and its time is ``None``."""
+    ``workers`` processes; a model policy's episodes are counted at the time limit and its time is ``None``."""
     steps = EPISODE_STEPS.get(spec.env_id, {}).get(spec.policy, envs.MAX_EPISODE_STEPS)
     transitions = n_episodes * steps
     seconds = None
@@ -65,8 +60,7 @@ def estimate(spec: CollectionSpec, n_episodes: int, workers: int) -> tuple[int, 
 
 
 def plan(spec: CollectionSpec, dataset_id: str, workers: int, start: int, where: str | None = None) -> str:
-    """The line a collection prints before it starts (``start`` episodes already collected; ``where`` says where the
-    episodes run, ``workers`` local processes by default)."""
+    """The line a collection prints before it starts (``start`` episodes already collected; ``where`` they run)."""
     remaining = spec.n_episodes - start
     transitions, seconds, size = estimate(spec, remaining, workers)
     if seconds is None:

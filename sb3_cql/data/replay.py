@@ -1,7 +1,4 @@
-"""Minari datasets into SB3's replay buffers (``ReplayBuffer``, ``DictReplayBuffer``, ``NStepReplayBuffer``) by bulk
-array assignment, with clear errors for bad data: data that do not fit the env (:func:`~sb3_cql.data.check_spaces`),
-NaN, actions outside the action space. Ids and buffers of the user's go through :mod:`sb3_cql.data.loading`.
-"""
+"""Minari datasets into SB3's replay buffers by bulk array assignment, with clear errors for bad data."""
 
 from __future__ import annotations
 
@@ -18,14 +15,12 @@ from sb3_cql.data.spaces import check_spaces, dataset_name
 if TYPE_CHECKING:  # SB3 (and torch) load only when a buffer is filled: collection workers never need them.
     from stable_baselines3.common.buffers import ReplayBuffer
 
-#: Episodes read at a time while filling a buffer from a non-HDF5 dataset (HDF5 ones are read one by one):
-#: the only copy of the data beside the buffer's arrays.
+#: Episodes read at a time from a non-HDF5 dataset: the only copy of the data beside the buffer's arrays.
 LOAD_BATCH_EPISODES = 256
 
 
 def check_box_spaces(dataset: MinariDataset, observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    """A :class:`DatasetError` unless the dataset's and the env's spaces are what a buffer holds: Box spaces, or for
-    observations Dict spaces of them."""
+    """A :class:`DatasetError` unless the dataset's and the env's spaces are Box spaces (or Dict observations of them)."""
     pairs = (("observation", dataset.observation_space, observation_space), ("action", dataset.action_space, action_space))
     for what, data_space, env_space in pairs:
         if what == "observation" and isinstance(data_space, spaces.Dict) and isinstance(env_space, spaces.Dict):
@@ -49,29 +44,13 @@ def fill_from_minari(
     replay_buffer_kwargs: dict[str, Any] | None = None,
     buffer_observation_space: spaces.Space | None = None,
 ) -> ReplayBuffer:
-    """Append every transition of ``dataset`` to a ``ReplayBuffer`` and return the buffer.
-
-    ``observations`` are each episode's observations but the last, ``next_observations`` all but the first,
-    actions are scaled to [-1, 1] as SB3's policies scale them (``BasePolicy.scale_action``), ``dones`` are
-    the terminations and ``timeouts`` the truncations (SB3 bootstraps through a timeout). Whole episodes are
-    copied into the arrays by slices, so the only copy of the data beside the buffer is one episode (one batch
-    for non-HDF5 datasets).
-
-    :param dataset: a Minari dataset (an id: :func:`~sb3_cql.data.fill_replay_buffer`).
-    :param observation_space: the env's observation space (the dataset must match it).
-    :param action_space: the env's action space (the dataset must match it).
-    :param replay_buffer: a buffer to append to; if it cannot hold its content and the dataset, a larger one
-        holding both is returned instead. ``None`` makes one of exactly the dataset's size.
-    :param device: the device of a buffer made here.
-    :param replay_buffer_class: the class of a buffer made here (SB3's ``ReplayBuffer`` by default; its
-        ``NStepReplayBuffer`` samples n-step returns within each episode).
-    :param replay_buffer_kwargs: keywords of a buffer made here (``n_steps`` and ``gamma`` of an
-        ``NStepReplayBuffer``).
-    :param buffer_observation_space: the observation space of a buffer made here where it is not the env's: SB3's
-        ``VecTransposeImage`` makes channel-last images channel-first for the policy, and the data's images are
-        transposed as it transposes them; data whose images are already channel-first (the buffer's shapes) load as
-        they are. Dict observations load into a ``DictReplayBuffer``.
-    """
+    """Append every transition of ``dataset`` to a ``ReplayBuffer`` and return the buffer: actions scaled to [-1, 1]
+    as SB3's ``BasePolicy.scale_action``, ``dones`` the terminations and ``timeouts`` the truncations, one episode
+    at a time copied by slices. The data must match the env's ``observation_space`` and ``action_space``.
+    ``replay_buffer`` is appended to (a larger copy is returned where it is too small); ``None`` makes one of the
+    dataset's size, of ``replay_buffer_class`` with ``replay_buffer_kwargs``, on ``device``, with
+    ``buffer_observation_space`` where it is not the env's (images channel-first as SB3's ``VecTransposeImage`` gives
+    them; data already channel-first load as they are)."""
     from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
     from stable_baselines3.common.vec_env import VecTransposeImage
 
@@ -130,8 +109,7 @@ BOUNDS_TOLERANCE = 1e-5
 def _bad_values(
     observations: np.ndarray | dict[str, np.ndarray], actions: np.ndarray, rewards: np.ndarray, action_space: spaces.Box
 ) -> str | None:
-    """Where an episode holds a NaN or infinite value, or an action outside ``action_space`` (data of another action
-    mode), as ``"step T: ..."``; ``None`` if nowhere."""
+    """Where an episode holds a NaN or infinite value, or an action outside ``action_space``, as ``"step T: ..."``."""
     checks = [(f"observation {key!r}" if key else "observation", array) for key, array in _items(observations)]
     for what, array in [*checks, ("action", actions), ("reward", rewards)]:
         flat = array.reshape(len(array), -1)
@@ -157,12 +135,8 @@ def _bad_values(
 def _episode_arrays(
     dataset: MinariDataset,
 ) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """``(id, observations, actions, rewards, terminations, truncations)`` of each episode of ``dataset``.
-
-    HDF5 datasets are read with h5py's low-level calls, one episode group after the other: Minari's own
-    reader (which also decodes infos and builds an ``EpisodeData``) loads ~74,000 transitions/s here, these
-    calls ~290,000. Other formats go through Minari, ``LOAD_BATCH_EPISODES`` episodes at a time.
-    """
+    """``(id, observations, actions, rewards, terminations, truncations)`` of each episode of ``dataset``: HDF5 ones
+    through h5py's low-level calls (~290,000 transitions/s, Minari's reader ~74,000), others through Minari."""
     storage, indices = dataset.storage, dataset.episode_indices
     if storage.FORMAT != "hdf5" or isinstance(dataset.observation_space, spaces.Dict):  # Dicts are HDF5 groups
         for first in range(0, len(indices), LOAD_BATCH_EPISODES):
@@ -197,8 +171,7 @@ def _column(arrays: np.ndarray | dict[str, np.ndarray], key: str | None) -> np.n
 
 
 def _transposed_keys(data_space: spaces.Space, buffer_space: spaces.Space) -> set[str | None]:
-    """The observations (keys of Dict ones, ``None`` for a Box) that SB3's ``VecTransposeImage`` transposed: channel-last
-    in the data's space, channel-first in the buffer's."""
+    """The observations (keys, ``None`` for a Box) channel-last in the data's space and channel-first in the buffer's."""
     data, buffer = dict(_space_items(data_space)), dict(_space_items(buffer_space))
     if set(data) != set(buffer):
         raise DatasetError(f"the buffer's observation space {buffer_space} does not hold the data's {data_space}")

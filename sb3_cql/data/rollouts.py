@@ -1,10 +1,6 @@
-"""Rollouts of a behaviour policy: what a dataset is made of (:class:`CollectionSpec`), the behaviour policies built
-from what the tasks register (the PD controllers of ``envs.CONTROLLERS``, with or without noise, uniform random
-actions, a saved SB3 model), and one episode of a collection in a worker process.
-
-Episode ``i`` of a collection is reset with ``seed + i``, draws its noise from a generator seeded with ``(seed, i)``
-and seeds a PD controller's random yaws with ``(seed, i)`` too (``PDController.seed``: a stream of their own), so a
-dataset does not depend on the number of workers and an interrupted collection resumes exactly where it stopped.
+"""Rollouts of a behaviour policy: what a dataset is made of (:class:`CollectionSpec`), the behaviour policies, and one
+episode of a collection in a worker process. Episode ``i`` is reset with ``seed + i`` and draws its noise and a PD
+controller's random yaws from ``(seed, i)``, so a dataset does not depend on the number of workers.
 """
 
 from __future__ import annotations
@@ -31,14 +27,12 @@ class CollectionSpec:
 
     :param env_id: gymnasium id of the task.
     :param policy: ``"pid"``, ``"noisy"`` (PD with Gaussian noise on the executed arm targets), ``"pid-regrasp"``
-        and ``"noisy-regrasp"`` (the same with the PD controller that grasps a lost object again),
-        ``"pid-regrasp-yaw"`` and ``"noisy-regrasp-yaw"`` (the same with the hand's yaw drawn at random at each grasp
-        attempt, seeded with ``(seed, i)`` in episode ``i``), ``"random"`` (uniform actions), or the path of a saved
-        SB3 model.
+        and ``"noisy-regrasp"`` (grasping a lost object again), ``"pid-regrasp-yaw"`` and ``"noisy-regrasp-yaw"``
+        (the hand's yaw drawn at random at each attempt), ``"random"`` (uniform actions), or a saved SB3 model's path.
     :param n_episodes: number of episodes.
     :param seed: episode ``i`` is reset with ``seed + i`` (an integer >= 0).
-    :param noise: standard deviation (rad) of the noise on the executed arm joint targets, a finite number >= 0; ``None`` means
-        0.03 for the noisy policies and 0 otherwise.
+    :param noise: standard deviation (rad) of the noise on the executed arm joint targets; ``None``: 0.03 for the noisy
+        policies, 0 otherwise.
     :param env_kwargs: keywords for ``gymnasium.make`` (``action_mode``, physics).
     :param algo: the SB3 algorithm of a model policy, a key of RL-Zoo3's ``ALGOS`` (``"sac"``, ``"cql"``...).
     """
@@ -83,14 +77,9 @@ class CollectionSpec:
 
 class BehaviourPolicy:
     """The behaviour policy of a collection in one env: :meth:`start` before each episode, then one call a step,
-    ``policy(observation, rng) -> (executed action, clean action or None)``, ``rng`` the episode's noise generator.
-    The clean action is the policy's own before noise, kept for imitation. A stateful policy's state (the attempt yaws
-    of a PD controller) goes from one step to the next as SB3's ``predict`` passes it.
-
-    :param predict: SB3's ``predict`` of the policy; ``None`` for uniform random actions.
-    :param action_space: the env's action space.
-    :param noise_scale: standard deviation of the Gaussian noise on each action component; ``None`` for none.
-    :param controller: the PD controller behind ``predict``, seeded at each episode's start.
+    ``policy(observation, rng) -> (executed action, clean action before noise or None)``, ``rng`` the episode's noise
+    generator: ``predict`` (SB3's; ``None`` for uniform random actions) plus Gaussian noise of ``noise_scale`` per
+    action component, if any. ``controller``, the PD controller behind ``predict``, is seeded at each episode's start.
     """
 
     def __init__(
@@ -108,8 +97,8 @@ class BehaviourPolicy:
         self._episode_start = True
 
     def start(self, seed: int, index: int) -> None:
-        """Begin episode ``index`` of a collection from ``seed``: a new state, and the PD controller's random yaws
-        seeded with ``(seed, index)`` (``PDController.seed``), so that they do not depend on the workers."""
+        """Begin episode ``index`` of a collection from ``seed``: a new state, the PD controller seeded with
+        ``(seed, index)``."""
         self._state, self._episode_start = None, True
         if self.controller is not None:
             self.controller.seed((seed, index))
@@ -162,9 +151,8 @@ def make_policy(spec: CollectionSpec, env: gym.Env) -> BehaviourPolicy:
 
 
 def model_action_mode(model_path: str, algo: str | None, env_id: str, given: str | None = None) -> str | None:
-    """The action mode a saved SB3 model acts in on ``env_id`` (the mode whose action space is the model's), as
-    ``python -m sb3_cql.evaluate`` finds it; ``given`` is checked against it (a ``ValueError`` if it is another).
-    ``given`` where the model's spaces cannot be read (:func:`make_policy` then says why it cannot be loaded)."""
+    """The action mode a saved SB3 model acts in on ``env_id``, ``given`` checked against it (``ValueError``);
+    ``given`` where the model's spaces cannot be read."""
     from types import SimpleNamespace
 
     from rl_zoo3.utils import ALGOS
@@ -226,8 +214,7 @@ def _run_episode(index: int) -> EpisodeBuffer:
 
 
 def _run_episodes(spec: CollectionSpec, indices: list[int]) -> list[EpisodeBuffer]:
-    """Roll out the episodes ``indices`` of ``spec`` in this process (a Ray task: the env and policy of its process are
-    kept for the next task of the same collection)."""
+    """Roll out the episodes ``indices`` of ``spec`` (a Ray task: the process keeps its env and policy for the next)."""
     if _worker.get("spec") != spec:
         if "env" in _worker:
             _worker["env"].close()

@@ -26,17 +26,9 @@ def select_episodes(
     dataset: MinariDataset, min_return: float | None = None, top_fraction: float | None = None
 ) -> MinariDataset:
     """The episodes of ``dataset`` whose undiscounted return is at least ``min_return`` and, of those, the
-    ``top_fraction`` with the highest returns (episodes tied with the last one kept are kept too), as a
-    ``MinariDataset`` view of the same files (``dataset.filter_episodes``). ``None`` for both: ``dataset`` itself.
-
-    :param dataset: a Minari dataset.
-    :param min_return: the lowest return kept (``1`` on a task whose reward is 1 at success only: the successful
-        episodes).
-    :param top_fraction: the share of the (remaining) episodes kept, by return: ``0.1`` keeps the best tenth,
-        at least one episode.
-    :raises ValueError: a setting outside its range, or a selection that keeps no episode (naming how many the
-        dataset has and the highest return among them).
-    """
+    ``top_fraction`` with the highest returns (at least one; ties with the last one kept are kept too), as a view of
+    the same files (``dataset.filter_episodes``); ``dataset`` itself for neither. ``ValueError`` for a setting out of
+    range or a selection that keeps no episode."""
     problem = check_selection(min_return, top_fraction)
     if problem is not None:
         raise ValueError(problem)

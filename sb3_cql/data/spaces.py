@@ -1,9 +1,5 @@
-"""Does this model, or this dataset, fit this env: one check of their spaces against an env's (:func:`check_spaces`),
-used where data are loaded, collected by a model, and where a model is evaluated; and the env keywords in which a
-model fits a task (:func:`env_kwargs_for`: the action mode it was trained in).
-
-The check needs gymnasium alone; the tasks (and their simulator) load when a task's spaces are made
-(:func:`env_spaces`), and Minari is never loaded here: a model is checked without it.
+"""Does this model, or this dataset, fit this env (:func:`check_spaces`), and the action mode a model was trained in
+(:func:`env_kwargs_for`). The tasks load only when a task's spaces are made, and Minari is never loaded here.
 """
 
 from __future__ import annotations
@@ -36,12 +32,8 @@ def env_name(env: gym.Env, env_id: str) -> str:
 
 
 def space_mismatch(space: gym.Space, env_space: gym.Space, what: str = "observation") -> str | None:
-    """Why ``space`` is not ``env_space``, in a few words (``""`` where the spaces say it), or ``None`` where it is:
-    Box spaces fit with the same shape and bounds (``np.allclose``; the dtypes may differ, the values are read as
-    numbers), other spaces when they are equal.
-
-    :param what: the space, in the reason: ``"action"``, ``"observation"``.
-    """
+    """Why ``space`` (``what``: ``"action"``, ``"observation"``) is not ``env_space``, in a few words (``""`` where the
+    spaces say it), or ``None`` where it is: Box spaces fit with the same shape and close bounds, whatever their dtypes."""
     if isinstance(space, spaces.Box) and isinstance(env_space, spaces.Box):
         if space.shape != env_space.shape:
             return f"its shape {space.shape}, not {env_space.shape}: made for another task?"
@@ -54,16 +46,14 @@ def space_mismatch(space: gym.Space, env_space: gym.Space, what: str = "observat
 def check_spaces(
     source: Any, observation_space: gym.Space | None, action_space: gym.Space | None, env: str = "the env"
 ) -> None:
-    """Refuse a model or a dataset that was not made for an env: one whose observation or action space is not the
-    env's (:func:`space_mismatch`; Dict observations key by key). A source without a space (a PD controller has
-    neither) fits every env.
+    """Refuse a model or a dataset whose observation or action space is not the env's (:func:`space_mismatch`; Dict
+    observations key by key): a :class:`DatasetError` for a dataset, a ``ValueError`` for a model. A source without a
+    space (a PD controller) fits every env.
 
     :param source: a Minari dataset, an SB3 model, or anything with ``observation_space`` and ``action_space``.
     :param observation_space: the env's observation space; ``None``: not checked.
     :param action_space: the env's action space; ``None``: not checked.
-    :param env: the env, in the message: ``"Panda-v0 (action_mode 'absolute')"`` (:func:`env_name`).
-    :raises DatasetError: for a dataset, naming it and both spaces.
-    :raises ValueError: for a model, naming both spaces.
+    :param env: the env, in the message (:func:`env_name`).
     """
     minari = sys.modules.get("minari")  # a dataset is made by Minari: without it loaded, the source is no dataset
     is_dataset = minari is not None and isinstance(source, minari.MinariDataset)
@@ -109,15 +99,9 @@ def env_spaces(env_id: str, env_kwargs: dict[str, Any] | None = None) -> tuple[g
 
 
 def env_kwargs_for(policy: Any, env_id: str, env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``env_kwargs`` with the ``action_mode`` that ``policy`` was trained in: the mode whose action space is the
-    policy's ``action_space``. A policy without ``action_space`` (the PD controllers) gets ``env_kwargs`` unchanged.
-
-    :param policy: an SB3 model or :class:`envs.PDController`.
-    :param env_id: the task.
-    :param env_kwargs: keywords of the env; an ``action_mode`` there must be the policy's.
-    :raises ValueError: when the policy's observation space is not the task's, when ``env_kwargs``'s
-        ``action_mode`` is not the policy's, or when no action mode is.
-    """
+    """``env_kwargs`` of ``env_id`` with the ``action_mode`` whose action space is ``policy``'s (an SB3 model; a
+    policy without ``action_space``, a PD controller, gets them unchanged). ``ValueError`` when the observation space
+    is not the task's, or the ``action_mode`` given or none is the policy's."""
     from envs.robot import ACTION_MODES  # the tasks and their simulator: see the module's docstring
 
     env_kwargs = dict(env_kwargs or {})
