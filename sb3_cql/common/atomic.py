@@ -88,11 +88,11 @@ def saved_model_problem(path: str | os.PathLike) -> str | None:
 
 def check_saved_model(path: Any) -> None:
     """A ``ValueError`` naming the file and what it lacks where the SB3 model file at ``path`` (or ``path`` + ``.zip``,
-    as SB3 reads it) does not open (:func:`saved_model_problem`); nothing for a file object, or a path without a file
-    (SB3's ``load`` says so itself)."""
+    as SB3 reads it), a zip archive, does not open (:func:`saved_model_problem`); nothing for a file object, a path
+    without a file or a file that is no zip archive (SB3's ``load`` says so itself)."""
     if not isinstance(path, (str, os.PathLike)):
         return
     found = next((file for file in (Path(path), Path(f"{path}.zip")) if file.is_file()), None)
-    problem = None if found is None else saved_model_problem(found)
+    problem = saved_model_problem(found) if found is not None and zipfile.is_zipfile(found) else None  # (SB3 names others)
     if problem is not None:
         raise ValueError(f"cannot load {found}: {problem}")
