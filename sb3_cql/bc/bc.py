@@ -134,9 +134,14 @@ class BC(OfflineSAC):
         return super()._fill_from_dataset(selected)
 
     @classmethod
+    def known_keywords(cls) -> set[str]:
+        """BC's own keywords: it refuses SAC's others (no critic, no entropy, no online fine-tuning)."""
+        return set(inspect.signature(cls.__init__).parameters) - {"self", "sac_kwargs"}
+
+    @classmethod
     def refuse_unknown_keywords(cls, keywords: Any) -> None:
         """Refuse keywords as BC's constructor does."""
-        unknown = {keyword: None for keyword in keywords if keyword not in inspect.signature(cls.__init__).parameters}
+        unknown = {keyword: None for keyword in keywords if keyword not in cls.known_keywords()}
         if unknown:
             _refuse_sac_keywords(unknown)
 
