@@ -8,11 +8,10 @@ python -m sb3_cql.data collect --env Panda-v0 --policy logs/sac/Panda-v0_1/best_
 python -m sb3_cql.data mix --dataset-id sb3cql/Panda-v0/mixed-v0 sb3cql/Panda-v0/pid-v0 sb3cql/Panda-v0/noisy-v0
 python -m sb3_cql.data info sb3cql/Panda-v0/pid-v0
 
-A collection prints what it will do before it starts. Ctrl-C (or SIGTERM) stops it with one line saying how many
-episodes are kept (exit status 130, 143 for SIGTERM); the same command resumes it, whatever moment a kill came at. A
-model policy acts in the action mode it was trained in (``--action-mode`` may only repeat it). A missing, partial,
-damaged or corrupt dataset, one being written by another command, a disk without room, an unknown env id or a model
-that cannot be loaded is one line on stderr (exit status 2).
+Ctrl-C (or SIGTERM) stops a collection with one line saying how many episodes are kept (exit status 130, 143 for
+SIGTERM); the same command resumes it. A model policy acts in the action mode it was trained in (``--action-mode``
+may only repeat it). Any error (a missing, partial or damaged dataset, one being written, a full disk, ...) is one
+line on stderr (exit status 2).
 """
 
 from __future__ import annotations
@@ -46,32 +45,17 @@ def main(argv: list[str] | None = None) -> None:
     collect.add_argument("--episodes", type=int, default=10_000)
     collect.add_argument("--seed", type=int, default=0, help="episode i is reset with seed + i")
     collect.add_argument("--noise", type=float, default=None, help="std (rad) of noise on the executed arm targets")
-    collect.add_argument(
-        "--action-mode",
-        default=None,
-        choices=["absolute", "delta"],
-        help="the env's action mode (default: absolute; a model policy's own)",
-    )
+    collect.add_argument("--action-mode", default=None, choices=["absolute", "delta"],
+                         help="the env's action mode (default: absolute; a model policy's own)")  # fmt: skip
     collect.add_argument("--workers", type=int, default=1)
-    collect.add_argument(
-        "--ray",
-        metavar="ADDRESS",
-        default=None,
-        help="run the episodes as Ray tasks on the cluster at ADDRESS (auto, host:port or "
-        "ray://host:port) instead of --workers processes: the same dataset",
-    )
+    collect.add_argument("--ray", metavar="ADDRESS", default=None,
+                         help="run the episodes as Ray tasks on the cluster at ADDRESS (auto, host:port or "
+                              "ray://host:port) instead of --workers processes: the same dataset")  # fmt: skip
     collect.add_argument("--dataset-id", default=None, help="default: sb3cql/<env>/<policy>[-delta]-v0")
-    collect.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace an existing dataset of that id, and a partial collection of another spec",
-    )
-    collect.add_argument(
-        "--write-every",
-        type=int,
-        default=WRITE_EVERY,
-        help="episodes written to disk at a time (%(default)s): the most a crash loses",
-    )
+    collect.add_argument("--overwrite", action="store_true",
+                         help="replace an existing dataset of that id, and a partial collection of another spec")  # fmt: skip
+    collect.add_argument("--write-every", type=int, default=WRITE_EVERY,
+                         help="episodes written to disk at a time (%(default)s): the most a crash loses")  # fmt: skip
 
     mix = commands.add_parser("mix", help="combine existing datasets into a new one")
     mix.add_argument("--dataset-id", required=True, help="id of the combined dataset")
@@ -101,23 +85,10 @@ def _run(args: argparse.Namespace) -> None:
         if args.policy not in POLICIES:
             action_mode = model_action_mode(args.policy, args.algo, args.env, args.action_mode)
         action_mode = action_mode or "absolute"
-        spec = CollectionSpec(
-            env_id=args.env,
-            policy=args.policy,
-            n_episodes=args.episodes,
-            seed=args.seed,
-            noise=args.noise,
-            env_kwargs={"action_mode": action_mode} if action_mode != "absolute" else {},
-            algo=args.algo,
-        )
-        dataset = collect_dataset(
-            spec,
-            args.dataset_id,
-            workers=args.workers,
-            overwrite=args.overwrite,
-            write_every=args.write_every,
-            ray_address=args.ray,
-        )
+        env_kwargs = {"action_mode": action_mode} if action_mode != "absolute" else {}
+        spec = CollectionSpec(args.env, args.policy, args.episodes, args.seed, args.noise, env_kwargs, algo=args.algo)
+        dataset = collect_dataset(spec, args.dataset_id, workers=args.workers, overwrite=args.overwrite,
+                                  write_every=args.write_every, ray_address=args.ray)  # fmt: skip
         metadata = dataset.storage.metadata
         print(
             f"{metadata['dataset_id']}: {dataset.total_episodes} episodes, {dataset.total_steps} transitions, "

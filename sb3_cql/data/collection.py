@@ -1,13 +1,7 @@
 """Collect behaviour-policy rollouts (:mod:`sb3_cql.data.rollouts`) into Minari datasets, in parallel, resumably and
 atomically: :func:`collect_dataset`, :func:`ensure_dataset` (a standard dataset, collected where it is missing) and
-:func:`mix_datasets`.
-
-Before it starts, a collection prints (on stderr) what it will do: the episodes, the workers, and about how long
-and how much disk it takes (:mod:`sb3_cql.data.estimates`); a resumed one says how many episodes it already has. On
-Ctrl-C or SIGTERM, the episodes finished are written, one line says how many are kept, and ``KeyboardInterrupt`` goes
-on to the caller; the workers ignore both, the parent stops them, and they die with it if it is killed
-(:class:`sb3_cql.processes.WorkerPool`). The files a collection writes, and why a kill at any instant loses nothing
-kept, are :mod:`sb3_cql.data.store`'s.
+:func:`mix_datasets`. The workers die with the parent (:class:`sb3_cql.processes.WorkerPool`); the files a collection
+writes, and why a kill at any instant loses nothing kept, are :mod:`sb3_cql.data.store`'s.
 """
 
 from __future__ import annotations
@@ -33,20 +27,9 @@ from tqdm import tqdm
 from sb3_cql.data import assembly, ids
 from sb3_cql.data.assembly import assemble, collection_metadata
 from sb3_cql.data.errors import DatasetError
-from sb3_cql.data.estimates import (
-    check_space,
-    estimate,
-    plan,
-)
+from sb3_cql.data.estimates import check_space, estimate, plan
 from sb3_cql.data.ids import POLICIES, RANDOM_POLICY
-from sb3_cql.data.rollouts import (
-    CollectionSpec,
-    _init_worker,
-    _run_episode,
-    _run_episodes,
-    _worker,
-    make_policy,
-)
+from sb3_cql.data.rollouts import CollectionSpec, _init_worker, _run_episode, _run_episodes, _worker, make_policy
 from sb3_cql.data.store import DatasetFiles, load_dataset, other_collection, prepare_folder
 from sb3_cql.processes import WorkerPool, interrupts_deferred, interrupts_noted, keyboard_interrupt
 
@@ -71,10 +54,8 @@ def _chunks(indices: list[int], size: int) -> list[list[int]]:
 def _episodes(
     spec: CollectionSpec, indices: list[int], workers: int, ray_address: str | None = None, chunk: int = WRITE_EVERY
 ) -> Iterator[EpisodeBuffer]:
-    """The episodes ``indices`` in order, from ``workers`` processes (in this one if 1; a
-    :class:`~sb3_cql.processes.WorkerPool` otherwise), or from Ray tasks of ``chunk`` episodes each on the cluster at
-    ``ray_address`` (:func:`sb3_cql.cluster.run_in_order`; a task whose node dies is run again: the episodes do not
-    depend on where they run)."""
+    """The episodes ``indices`` in order, from ``workers`` processes (this one if 1), or from Ray tasks of ``chunk``
+    episodes on the cluster at ``ray_address`` (a task whose node dies runs again: episodes do not depend on where)."""
     if ray_address is not None:
         from sb3_cql.cluster import run_in_order
 
@@ -106,9 +87,8 @@ def _episodes(
 
 
 def _resume(files: DatasetFiles, spec: CollectionSpec, overwrite: bool) -> tuple[set[int], list[bool]]:
-    """The episodes (indices) an interrupted collection of ``spec`` holds, and their successes; a new collection
-    where there is none. A partial collection of another spec, or one with a file that cannot be read, is refused
-    with one :class:`DatasetError` saying what it holds and what to do (``overwrite`` replaces it)."""
+    """The episodes (indices) an interrupted collection of ``spec`` holds, and their successes (a new collection where
+    there is none); another spec's partial collection, or an unreadable file, is a :class:`DatasetError`."""
     files.check_writable()
     held_spec = files.spec()
     if files.holds_anything() and held_spec != spec.to_json():
@@ -156,19 +136,16 @@ def collect_dataset(
     """Collect ``spec.n_episodes`` episodes into the Minari dataset ``dataset_id`` and return it.
 
     The episodes go to a hidden ``.partial`` folder beside the dataset, ``write_every`` at a time, each file written
-    whole or not at all; once all are there they are assembled into the dataset, which is renamed into place
-    (:mod:`sb3_cql.data.store` has the layout). A kill at any instant leaves no dataset under its id, or the
-    complete one, and running the same collection again resumes it to the dataset an uninterrupted run gives. A
-    partial collection of another spec is kept, and this one refused with a :class:`DatasetError` saying what it
-    holds (``overwrite`` replaces it), unless it kept no episode; so is a second collection of the id while one runs.
-    A standard id (:func:`standard_collection`) takes its standard collection only, or its first episodes: another
-    policy, seed, noise or physics is a :class:`DatasetError` naming an id of its own. Actions are the executed
-    ones; with noise, the policy's clean actions are in the episodes' ``infos["clean_action"]``.
+    whole or not at all, then are assembled into the dataset, renamed into place (:mod:`sb3_cql.data.store`). A kill
+    at any instant leaves no dataset under its id, or the complete one; the same collection run again resumes it to
+    the dataset an uninterrupted run gives. A partial collection of another spec that kept episodes, or a second
+    collection of the id while one runs, is a :class:`DatasetError` (``overwrite`` replaces the former). A standard
+    id (:func:`standard_collection`) takes its standard collection only, or its first episodes. Actions are the
+    executed ones; with noise, the policy's clean actions are in the episodes' ``infos["clean_action"]``.
 
-    It prints (on stderr) one line before it starts: the episodes, the workers and about how long and how much disk
-    they take, or, resuming, how many episodes it already has; it refuses to start on a disk without room for them.
-    On Ctrl-C or SIGTERM (``KeyboardInterrupt``), it writes the episodes finished so far, prints one line saying how
-    many are kept, and raises the ``KeyboardInterrupt`` again.
+    It prints (on stderr) one line before it starts: the episodes, the workers, about how long and how much disk they
+    take (refused on a disk without room), or how many episodes a resumed one has. On Ctrl-C or SIGTERM, it writes
+    the episodes finished, prints one line saying how many are kept, and raises the ``KeyboardInterrupt`` again.
 
     :param spec: what to collect.
     :param dataset_id: the Minari id; by default ``sb3cql/<env>/<policy>[-delta][-<N>k]-v0``, ``-<N>k`` for a
@@ -275,8 +252,7 @@ def _collect(
 
 
 def _write(files: DatasetFiles, pending: list[EpisodeBuffer]) -> int:
-    """Write the ``pending`` episodes as one file, whole even if Ctrl-C comes meanwhile, empty the list and return how
-    many were written."""
+    """Write the ``pending`` episodes as one file, whole even on Ctrl-C; empty the list; return how many."""
     with interrupts_deferred(sigterm_as_interrupt=True):
         written = len(pending)
         if pending:
@@ -299,12 +275,9 @@ def _interrupted(dataset_id: str, spec: CollectionSpec, held: int, started: bool
 def ensure_dataset(
     dataset_id: str, n_episodes: int | None = None, workers: int | None = None, progress_bar: bool = True
 ) -> MinariDataset:
-    """The dataset ``dataset_id``, collected first if it is missing and its id is one of this package's standard
-    ones (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0``, :func:`standard_collection`: 10,000 episodes, or N
-    thousand, from seed 0). Any other missing id raises :class:`~sb3_cql.data.DatasetError`. An interrupted
-    collection resumes; what a collection prints and does on Ctrl-C is :func:`collect_dataset`'s. While another
-    process collects the dataset (two trainings started at once on a new machine), this one waits for it, then loads
-    it.
+    """The dataset ``dataset_id``, collected first (or resumed, as :func:`collect_dataset` does) if it is missing and
+    its id is a standard one (:func:`standard_collection`); any other missing id raises
+    :class:`~sb3_cql.data.DatasetError`. While another process collects it, this one waits, then loads it.
 
     :param dataset_id: the Minari id.
     :param n_episodes: episodes of a collection; ``None`` for :class:`CollectionSpec`'s default.
@@ -338,9 +311,8 @@ def standard_collection(dataset_id: str) -> CollectionSpec | None:
 
 
 def _check_standard(spec: CollectionSpec, dataset_id: str) -> None:
-    """A :class:`DatasetError` if ``dataset_id`` is a standard id (:func:`standard_collection`) and ``spec`` is not its
-    collection, or the first episodes of it (:func:`~sb3_cql.data.ids.standard_mismatch`: every field the id
-    defines): what trains on the id would get other data without a word."""
+    """A :class:`DatasetError` if ``dataset_id`` is a standard id and ``spec`` is not its collection or the first
+    episodes of it (:func:`~sb3_cql.data.ids.standard_mismatch`): what trains on the id would get other data."""
     fields = json.loads(spec.to_json())
     mismatch = ids.standard_mismatch(dataset_id, fields, "this collection")
     if mismatch is None:
@@ -352,8 +324,7 @@ def _check_standard(spec: CollectionSpec, dataset_id: str) -> None:
 
 
 def default_dataset_id(spec: CollectionSpec) -> str:
-    """The id a collection of ``spec`` gets without one: ``sb3cql/<env>/<policy>[-delta][-<N>k]-v0``, ``-<N>k`` for a
-    number of episodes that is a multiple of 1,000 other than 10,000."""
+    """The id a collection of ``spec`` gets without one (:func:`collect_dataset`'s ``dataset_id``)."""
     policy_name = spec.policy if spec.policy in POLICIES else Path(spec.policy).stem
     in_thousands = spec.n_episodes >= 1000 and spec.n_episodes % 1000 == 0
     return ids.dataset_id(spec.env_id, policy_name, spec.action_mode, episodes=spec.n_episodes if in_thousands else None)

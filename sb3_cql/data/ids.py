@@ -1,9 +1,6 @@
-"""Names and places of the datasets: one home for the dataset id scheme, and for the names of the behaviour policies
-that the standard ids are made of.
-
-The policy names come from the PD controllers the tasks register (``envs.pd_controller.BEHAVIOUR_CONTROLLERS``);
-reading them imports the tasks and their simulator, so they are read on first use (:func:`behaviour_policies`, and
-the module's ``POLICIES`` and ``NOISY_POLICIES``): loading a dataset imports no simulator.
+"""Names and places of the datasets: the dataset id scheme, and the behaviour policies' names the standard ids are
+made of. Those come from the PD controllers the tasks register, read on first use (:func:`behaviour_policies`,
+``POLICIES``, ``NOISY_POLICIES``): loading a dataset imports no simulator.
 """
 
 from __future__ import annotations
@@ -26,8 +23,6 @@ RANDOM_POLICY = "random"
 DEFAULT_NOISE = 0.03
 #: Name of the file describing a collection in progress, in its ``.partial`` folder (to resume only the same one).
 SPEC_FILE = "collection.json"
-
-
 #: Episodes of a standard dataset whose id gives no count (``sb3cql/Panda-v0/pid-v0``): the thesis's dataset size.
 STANDARD_EPISODES = 10_000
 
@@ -35,16 +30,9 @@ STANDARD_EPISODES = 10_000
 def dataset_id(
     env_id: str, policy: str = "pid", action_mode: str = "absolute", version: int = 0, episodes: int | None = None
 ) -> str:
-    """The Minari id of a dataset: ``sb3cql/Panda-v0/pid-v0``, ``sb3cql/Panda-v0/noisy-delta-v0``,
-    ``sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0`` (1,000 episodes), ...
-
-    :param env_id: the gymnasium id of the task the data comes from.
-    :param policy: the behaviour policy's name (``pid``, ``noisy``, ``random``, ``mixed`` or any name).
-    :param action_mode: the env's action mode; datasets of the two modes hold different actions.
-    :param version: the dataset version.
-    :param episodes: the number of episodes, a multiple of 1,000 written in the id (``-1k``); ``None`` or
-        :data:`STANDARD_EPISODES` for none.
-    """
+    """The Minari id of a dataset: ``sb3cql/Panda-v0/pid-v0``, ``sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0`` (1,000
+    episodes), ... ``policy`` is any name; ``episodes``, a multiple of 1,000, is written in the id (``-1k``) unless
+    ``None`` or :data:`STANDARD_EPISODES`."""
     suffix = "" if action_mode == "absolute" else f"-{action_mode}"
     if episodes is not None and episodes != STANDARD_EPISODES:
         if episodes < 1000 or episodes % 1000:
@@ -71,18 +59,14 @@ def dataset_path(dataset_id: str) -> Path:
 
 def partial_path(dataset_id: str) -> Path:
     """Where a collection of ``dataset_id`` writes until it is complete: a hidden ``.<name>.partial`` folder beside
-    the dataset's, holding the episodes written so far and the collection's spec."""
+    the dataset's."""
     final = dataset_path(dataset_id)
     return final.with_name(f".{final.name}.partial")
 
 
 def collect_command(spec: dict[str, Any], dataset_id: str) -> str | None:
-    """The ``python -m sb3_cql.data collect`` command line of a collection, from its spec's fields
-    (:class:`~sb3_cql.data.CollectionSpec`), or ``None`` if the command line cannot express it (physics keywords).
-
-    :param spec: the spec's fields, as :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them.
-    :param dataset_id: the dataset's id.
-    """
+    """The ``python -m sb3_cql.data collect`` command line of a collection, from its spec's fields (as
+    :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them), or ``None`` if it cannot express it (physics keywords)."""
     env_kwargs = dict(spec.get("env_kwargs") or {})
     action_mode = env_kwargs.pop("action_mode", "absolute")
     if env_kwargs:
@@ -105,10 +89,7 @@ def dataset_exists(dataset_id: str) -> bool:
 
 def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int, int] | None:
     """``(env_id, policy, action_mode, version, episodes)`` of an id made by :func:`dataset_id` with a named policy,
-    else ``None``: ``sb3cql/Panda-v0/noisy-delta-v0`` -> ``("Panda-v0", "noisy", "delta", 0, 10000)``,
-    ``sb3cql/Panda-v0/pid-2k-v0`` -> ``("Panda-v0", "pid", "absolute", 0, 2000)``,
-    ``sb3cql/PandaForce-v0/noisy-regrasp-yaw-delta-1k-v0`` -> ``("PandaForce-v0", "noisy-regrasp-yaw", "delta", 0,
-    1000)``."""
+    else ``None``: ``sb3cql/Panda-v0/pid-2k-v0`` -> ``("Panda-v0", "pid", "absolute", 0, 2000)``."""
     policies = "|".join(sorted(behaviour_policies(), key=len, reverse=True))  # a name before any that begins it
     match = re.fullmatch(rf"{NAMESPACE}/([^/]+)/({policies})(-delta)?(?:-([1-9]\d*)k)?-v(\d+)", dataset_id)
     if match is None:
@@ -120,9 +101,8 @@ def parse_dataset_id(dataset_id: str) -> tuple[str, str, str, int, int] | None:
 
 def standard_collection_fields(dataset_id: str) -> dict[str, Any] | None:
     """The fields (as :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them) of the collection a standard id stands
-    for (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0`` with a named policy and a registered task: its episodes, 10,000
-    without ``-<N>k``, from seed 0, the policy's default noise), or ``None`` for any other id
-    (:func:`~sb3_cql.data.standard_collection` makes it a spec)."""
+    for (``sb3cql/<task>/<policy>[-delta][-<N>k]-v0`` with a named policy and a registered task: its episodes, from
+    seed 0, the policy's default noise), or ``None`` for any other id."""
     parsed = parse_dataset_id(dataset_id)
     if parsed is None or parsed[3] != 0 or parsed[0] not in _registered_tasks():
         return None
@@ -133,12 +113,9 @@ def standard_collection_fields(dataset_id: str) -> dict[str, Any] | None:
 
 
 def standard_mismatch(dataset_id: str, fields: dict[str, Any], holder: str) -> str | None:
-    """Why the collection ``fields`` (as :meth:`~sb3_cql.data.CollectionSpec.to_json` writes them) cannot be the data of
-    ``dataset_id``, a standard id (:func:`standard_collection_fields`) that defines others: every field the id defines
-    but the episodes must be its own (the task, the policy, the action mode, the seed, the noise, the physics, the
-    algorithm: the fields compared are those :func:`standard_collection_fields` returns, so a field added there is
-    compared too), and the episodes no more than its own. ``None`` where they agree, or for an id that is not a standard
-    one. ``holder`` names what holds ``fields``: ``"this collection"``, ``"the dataset at PATH"``."""
+    """Why the collection ``fields`` cannot be the data of ``dataset_id``, a standard id: every field of
+    :func:`standard_collection_fields` but the episodes must be its own, and the episodes no more than its own.
+    ``None`` where they agree, or for another id. ``holder`` names what holds ``fields`` (``"this collection"``)."""
     standard = standard_collection_fields(dataset_id)
     if standard is None:
         return None
@@ -154,25 +131,20 @@ def standard_mismatch(dataset_id: str, fields: dict[str, Any], holder: str) -> s
 
 
 def default_noise(policy: str) -> float:
-    """The noise (std in rad) of a collection of ``policy`` that gives none: :data:`DEFAULT_NOISE` for the noisy
-    policies, 0 for the others."""
+    """The noise (std in rad) of a collection of ``policy`` that gives none: :data:`DEFAULT_NOISE` for a noisy policy."""
     return DEFAULT_NOISE if policy in noisy_policies() else 0.0
 
 
 def noisy_policy(controller: str) -> str:
-    """The name of the policy that adds noise to the PD controller ``controller``: ``pid`` -> ``noisy``,
-    ``pid-regrasp`` -> ``noisy-regrasp``."""
+    """The policy that adds noise to the PD controller ``controller``: ``pid-regrasp`` -> ``noisy-regrasp``."""
     return "noisy" + controller.removeprefix("pid") if controller.startswith("pid") else f"noisy-{controller}"
 
 
 @functools.cache
 def behaviour_policies() -> tuple[str, ...]:
     """Behaviour policies that :func:`~sb3_cql.data.collect_dataset` knows by name: the PD controllers the tasks register
-    as behaviour policies (``envs.pd_controller.BEHAVIOUR_CONTROLLERS``: ``pid``, ``pid-regrasp`` that grasps a lost
-    object again, and ``pid-regrasp-yaw`` that does so with the hand's yaw drawn at random at each grasp attempt), each
-    followed by its noisy policy (:func:`noisy_policy`: Gaussian noise on its arm targets), and uniform random actions
-    (:data:`RANDOM_POLICY`). Not the reference controllers (``envs.pd_controller.REFERENCE_CONTROLLERS``): they are
-    evaluated, never imitated."""
+    as such (``envs.pd_controller.BEHAVIOUR_CONTROLLERS``; not the reference ones, evaluated, never imitated), each
+    followed by its noisy policy (:func:`noisy_policy`), and :data:`RANDOM_POLICY`."""
     from envs.pd_controller import BEHAVIOUR_CONTROLLERS  # the tasks and the simulator: see the module's docstring
 
     return (*(name for controller in BEHAVIOUR_CONTROLLERS for name in (controller, noisy_policy(controller))), RANDOM_POLICY)

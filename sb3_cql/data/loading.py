@@ -49,10 +49,8 @@ def resolve_dataset(dataset: Any) -> MinariDataset | ReplayBuffer:
 
 
 def check_standard_data(dataset_id: str, data: MinariDataset) -> None:
-    """The data under a standard id are its collection's (:func:`~sb3_cql.data.ids.standard_mismatch`): others (another
-    task, policy, action mode, seed, noise or physics; a mix, or data written by hand, which record no collection) are
-    one :class:`DatasetError`. Fewer episodes than the id defines (its first ones) are one line on stderr, with the
-    command that collects them all: a standard id names its whole collection."""
+    """The data under a standard id are its collection's (:func:`~sb3_cql.data.ids.standard_mismatch`), else (a mix or
+    data written by hand too) one :class:`DatasetError`; its first episodes only are one line on stderr."""
     standard = ids.standard_collection_fields(dataset_id) if dataset_id.startswith(f"{ids.NAMESPACE}/") else None
     if standard is None:  # (whether an id is a standard one is read from the tasks: only for this namespace's ids)
         return
@@ -102,17 +100,11 @@ def load_replay_buffer(
     replay_buffer_class: type[ReplayBuffer] | None = None,
     replay_buffer_kwargs: dict[str, Any] | None = None,
 ) -> ReplayBuffer:
-    """The replay buffer a model trains on from ``dataset`` (an id, a Minari dataset or a filled buffer): a buffer of
-    the user's checked and returned as it is, a Minari dataset loaded into a new buffer of ``replay_buffer_class``.
+    """The replay buffer a model trains on from ``dataset`` (what :func:`resolve_dataset` takes): a buffer of the
+    user's checked and returned as it is, a Minari dataset loaded into a new buffer of ``replay_buffer_class`` (with
+    ``replay_buffer_kwargs``, on ``device``). ``observation_space`` is the model's (channel-first images after SB3's
+    ``VecTransposeImage``), ``data_observation_space`` the env's as the data hold it, where it is not that one.
 
-    :param dataset: what :func:`resolve_dataset` takes.
-    :param observation_space: the model's observation space (channel-first images after SB3's ``VecTransposeImage``).
-    :param action_space: the model's action space.
-    :param data_observation_space: the env's observation space as the data hold it (channel-last images), where it is
-        not ``observation_space``.
-    :param device: the buffer's device.
-    :param replay_buffer_class: the class of a buffer made here.
-    :param replay_buffer_kwargs: its keywords.
     :raises DatasetError: the data do not fit the spaces, hold a non-finite value or an action outside [-1, 1], or no
         transition.
     """
@@ -153,9 +145,8 @@ def check_buffer_values(buffer: ReplayBuffer) -> None:
 
 
 def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None:
-    """The first NaN or infinity among the filled transitions of ``buffer``: ``(field, index, env, value)``, the
-    field (``observations['key']`` for a dict of them), the buffer index and env of its transition; ``None`` if all
-    are finite."""
+    """The first NaN or infinity among the filled transitions of ``buffer``: ``(field, index, env, value)`` (field
+    ``observations['key']`` for a dict of them); ``None`` if all are finite."""
     size = buffer.size()
     fields = []
     for name in ("observations", "next_observations"):
@@ -175,9 +166,8 @@ def first_non_finite(buffer: ReplayBuffer) -> tuple[str, int, int, float] | None
 
 
 def first_action_outside(buffer: ReplayBuffer) -> tuple[int, int, int, float] | None:
-    """The first action among the filled transitions of ``buffer`` outside [-1, 1], the scaled action space SB3's
-    buffers hold (``policy.scale_action``): ``(index, env, component, value)``; ``None`` if all lie inside (NaN
-    compares as inside: :func:`first_non_finite` finds it)."""
+    """The first action among the filled transitions of ``buffer`` outside [-1, 1] (SB3's buffers hold scaled ones):
+    ``(index, env, component, value)``; ``None`` if all lie inside (NaN too: :func:`first_non_finite` finds it)."""
     size = buffer.size()
     filled = buffer.actions[:size].reshape(size, buffer.n_envs, -1)
     bad = np.argwhere(np.abs(filled) > 1.0 + SCALED_ACTION_TOLERANCE)

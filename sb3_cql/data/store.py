@@ -16,9 +16,6 @@ dataset's folder ``NAME`` (Minari's, under its namespace), while it is collected
   other two are removed. The next start completes a swap a kill cut short (:meth:`DatasetFiles.recover`).
 - ``.NAME.lock``: held (``flock``) by the process writing ``NAME``; the kernel lets go of it when the process ends.
 
-A dataset is loaded (:func:`load_dataset`) once a replacement a kill cut short is completed; a missing, partial or
-damaged one is one :class:`DatasetError` saying how to collect it.
-
 ``SB3_CQL_CRASH_AT=POINT`` kills the process (``SIGKILL``) at one of :data:`CRASH_POINTS`, for the tests that check
 these claims with real kills at the moments that timing alone rarely hits.
 """
@@ -48,9 +45,8 @@ from sb3_cql.files import replace_atomically, sync_folder, write_atomically
 
 #: The environment variable that names the crash point to kill the process at.
 CRASH_AT_ENV = "SB3_CQL_CRASH_AT"
-#: Where :func:`crash_point` is called: inside an episode file's write (after its first block), after the write
-#: before the rename, after the first episode of the assembly, after the assembly, between the two renames of a
-#: swap, and after the new dataset is in place (before the old one and the partial folder are removed).
+#: Where :func:`crash_point` is called: inside an episode file's write, before its rename, after the assembly's first
+#: episode, after the assembly, between a swap's two renames, and before the old dataset and partial folder go.
 CRASH_POINTS = ("episodes-write", "episodes-written", "assemble", "assembled", "swap", "published")
 #: Bytes written at a time into an episode file.
 WRITE_BLOCK = 1 << 16
@@ -67,9 +63,7 @@ def crash_point(name: str) -> None:
 
 
 def _write_episode_file(path: Path, data: bytes) -> None:
-    """Write an episode file atomically (:func:`~sb3_cql.files.replace_atomically`), :data:`WRITE_BLOCK` bytes
-    at a time, with the crash points ``episodes-write`` (after the first block) and ``episodes-written`` (before the
-    rename)."""
+    """Write an episode file atomically, :data:`WRITE_BLOCK` bytes at a time, with its two crash points."""
 
     def write(temporary: Path) -> None:
         with open(temporary, "xb") as file:
@@ -82,10 +76,7 @@ def _write_episode_file(path: Path, data: bytes) -> None:
 
 
 class DatasetFiles:
-    """The folders and files of dataset ``dataset_id`` and of its collection in progress (the module's layout).
-
-    :param dataset_id: the Minari id.
-    """
+    """The folders and files of dataset ``dataset_id`` (a Minari id) and of its collection in progress."""
 
     def __init__(self, dataset_id: str) -> None:
         self.dataset_id = dataset_id
@@ -105,8 +96,8 @@ class DatasetFiles:
 
     @contextlib.contextmanager
     def locked(self, wait: bool = False) -> Iterator[None]:
-        """Hold the dataset's lock while the block runs; another process holding it is one :class:`DatasetError`,
-        or with ``wait``, waited for. A folder that cannot be written is one too, before anything is done."""
+        """Hold the dataset's lock while the block runs; another holder (unless ``wait``) or a folder that cannot be
+        written is one :class:`DatasetError`."""
         try:
             self.final.parent.mkdir(parents=True, exist_ok=True)
             descriptor = os.open(self.lock_file, os.O_RDWR | os.O_CREAT, 0o644)
@@ -152,7 +143,7 @@ class DatasetFiles:
         return False
 
     def check_writable(self) -> None:
-        """One :class:`DatasetError` if the partial folder is there and cannot be written (a read-only file system)."""
+        """One :class:`DatasetError` if the partial folder is there and cannot be written."""
         if not self.partial.is_dir():
             return
         probe = self.partial / f".write-probe-{os.getpid()}"
@@ -167,8 +158,7 @@ class DatasetFiles:
     # Swaps ---------------------------------------------------------------------------------------------------------
 
     def recover(self) -> None:
-        """Complete a publication (:meth:`publish`) that a kill cut short: the new dataset goes in place if it was
-        not yet, and what is left of the swap is removed. Call it holding the lock."""
+        """Complete a publication (:meth:`publish`) that a kill cut short. Call it holding the lock."""
         if self.publishing.exists():
             assembled = self.publishing / self.assembled.name
             if assembled.is_dir():
@@ -185,8 +175,8 @@ class DatasetFiles:
                 os.replace(self.old, self.final)
 
     def publish(self) -> Path:
-        """Put the complete dataset of ``assembled/`` in place of the dataset's folder by renames (:meth:`recover`
-        completes them after a kill), and remove the partial folder. Returns the dataset's folder."""
+        """Put ``assembled/`` in place of the dataset's folder by renames, remove the partial folder, return the
+        dataset's folder."""
         os.replace(self.partial, self.publishing)  # from here on, the new dataset wins
         if self.final.exists():
             os.replace(self.final, self.old)
@@ -218,8 +208,7 @@ class DatasetFiles:
         return self.partial.is_dir() and any(self.partial.iterdir())
 
     def holds_no_episodes(self) -> bool:
-        """Whether the partial folder is a collection that kept no episode (its spec, an empty ``episodes/``): one
-        refused or interrupted before its first file, which another collection may replace without losing anything."""
+        """Whether the partial folder is a collection that kept no episode, which another may replace losing nothing."""
         if not self.partial.is_dir() or {path.name for path in self.partial.iterdir()} - {ids.SPEC_FILE, self.episodes.name}:
             return False
         return not self.episodes.is_dir() or not any(self.episodes.iterdir())
@@ -240,8 +229,7 @@ class DatasetFiles:
         return sum(len(indices) for indices, _ in self.episode_files())
 
     def write_episodes(self, episodes: list[EpisodeBuffer]) -> None:
-        """Write consecutive ``episodes`` as one file, atomically. A full disk is one :class:`DatasetError` saying
-        what is kept."""
+        """Write consecutive ``episodes`` as one file, atomically; a full disk is one :class:`DatasetError`."""
         first, last = episodes[0].id, episodes[-1].id
         path = self.episodes / f"{first:06d}-{last:06d}.pkl"
         try:
@@ -262,8 +250,8 @@ class DatasetFiles:
             return pickle.load(file)
 
     def read_storage_before_episode_files(self) -> list[EpisodeBuffer]:
-        """The episodes readable in the collection's Minari storage of before episode files: those whose HDF5
-        groups read whole, from the first on (the count its ``metadata.json`` gave could be behind the file)."""
+        """The episodes of the collection's Minari storage of before episode files whose HDF5 groups read whole, from
+        the first on (its ``metadata.json``'s count could be behind the file)."""
         import h5py
         import numpy as np
 
@@ -288,8 +276,7 @@ class DatasetFiles:
 
 
 def partial_summary(files: DatasetFiles) -> tuple[dict, int] | None:
-    """``(spec fields, episodes held)`` of the collection in progress of ``files``, or ``None`` if there is none
-    that can be read."""
+    """``(spec fields, episodes held)`` of the collection in progress of ``files``, or ``None`` (none readable)."""
     try:
         spec = files.spec()
         return (json.loads(spec), files.episodes_held()) if spec is not None else None
@@ -302,9 +289,8 @@ def _reason(error: OSError) -> str:
 
 
 def load_dataset(dataset_id: str) -> MinariDataset:
-    """Open the Minari dataset ``dataset_id``, with an error naming it (and how to make it) if it is missing,
-    partial, damaged or unreadable. A replacement of it that a kill cut short is completed first
-    (:meth:`DatasetFiles.recover`), unless a collection of it is running."""
+    """Open the Minari dataset ``dataset_id`` (completing a replacement a kill cut short, unless a collection of it
+    runs), with a :class:`DatasetError` naming it and how to make it if it is missing, partial, damaged or unreadable."""
     files = DatasetFiles(dataset_id)
     if (files.publishing.exists() or files.old.exists()) and not files.is_locked():
         with contextlib.suppress(DatasetError, OSError), files.locked():
@@ -334,8 +320,7 @@ def load_dataset(dataset_id: str) -> MinariDataset:
 
 
 def damaged_dataset(dataset_id: str) -> str:
-    """What to say of a dataset folder without its ``data/metadata.json`` (Minari writes it last: without it, the
-    folder cannot be read), and how to collect it again."""
+    """What to say of a dataset folder without its ``data/metadata.json`` (Minari writes it last)."""
     path = ids.dataset_path(dataset_id)
     fields = ids.standard_collection_fields(dataset_id)
     command = ids.collect_command(fields, dataset_id) if fields is not None else None
@@ -384,9 +369,8 @@ def other_collection(files: DatasetFiles, held_spec: str | None) -> str:
 
 
 def prepare_folder(dataset_id: str, overwrite: bool) -> Path:
-    """The folder of ``dataset_id``, after checking it may be written and creating its Minari namespace. A dataset
-    there is a ``FileExistsError`` unless ``overwrite``; a damaged one (no ``metadata.json``) a
-    :class:`DatasetError`, as :func:`~sb3_cql.data.load_dataset` has it."""
+    """The folder of ``dataset_id``, its Minari namespace created; a dataset there is a ``FileExistsError`` unless
+    ``overwrite``, a damaged one a :class:`DatasetError`."""
     final = ids.dataset_path(dataset_id)
     if final.exists() and not overwrite:
         if not ids.dataset_exists(dataset_id):
