@@ -26,14 +26,7 @@ import sys
 import envs
 from sb3_cql.processes import exit_status, run_command
 from sb3_cql.protocol.records import ResultsFolder, read_json
-from sb3_cql.protocol.runner import (
-    DEFAULT_ALGOS,
-    THESIS_SEEDS,
-    Protocol,
-    ProtocolError,
-    Settings,
-    UnitsFailed,
-)
+from sb3_cql.protocol.runner import DEFAULT_ALGOS, THESIS_SEEDS, Protocol, ProtocolError, Settings, UnitsFailed
 from sb3_cql.protocol.schedule import run_protocol
 
 #: ``--quick``: training steps, evaluation every ... steps over ... episodes, checkpoints, final episodes.
@@ -41,23 +34,18 @@ QUICK = {"n_timesteps": 2000, "eval_freq": 1000, "eval_episodes": 5, "save_freq"
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m sb3_cql.protocol", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog="python -m sb3_cql.protocol", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--algos", nargs="+", default=list(DEFAULT_ALGOS),
                         help=f"RL-Zoo3 algorithms, and the PD controllers: {', '.join(envs.CONTROLLERS)}")  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=None, help=f"default: {' '.join(map(str, THESIS_SEEDS))}")
     parser.add_argument("--tasks", nargs="+", default=list(envs.ENV_IDS), choices=list(envs.ENV_IDS))
     parser.add_argument("--results-dir", default="results")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (zoo runs get 1 torch thread if > 1)")
-    parser.add_argument(
-        "--ray",
-        metavar="ADDRESS",
-        default=None,
-        help="run the units as Ray tasks on the cluster at ADDRESS (auto, host:port or ray://host:port), "
-        "as many at a time as it has CPUs (or --workers); the results folder must be on storage "
-        "every node sees",
-    )
+    parser.add_argument("--ray", metavar="ADDRESS", default=None,
+                        help="run the units as Ray tasks on the cluster at ADDRESS (auto, host:port or ray://host:port), "
+                             "as many at a time as it has CPUs (or --workers); the results folder must be on storage "
+                             "every node sees")  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="1 seed, short training, 20 final episodes")
     parser.add_argument("--n-timesteps", type=int, default=None, help="training steps of every run (default: configs)")
     parser.add_argument("--eval-freq", type=int, default=None, help="steps between evaluations in training (default: configs)")
@@ -66,14 +54,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--save-freq", type=int, default=None, help="steps between checkpoints (default 10,000)")
     parser.add_argument("--dataset", default=None, help="dataset of the offline algorithms (default: configs')")
     parser.add_argument("--zoo-args", default="", help='more rl_zoo3.train arguments, e.g. "--hyperparams batch_size:64"')
-    parser.add_argument(
-        "--finetune",
-        nargs="+",
-        default=[],
-        choices=list(envs.ENV_IDS),
-        metavar="TASK",
-        help="fine-tune each seed's best CQL model online on these tasks: rows of their own",
-    )
+    parser.add_argument("--finetune", nargs="+", default=[], choices=list(envs.ENV_IDS), metavar="TASK",
+                        help="fine-tune each seed's best CQL model online on these tasks: rows of their own")  # fmt: skip
     parser.add_argument("--finetune-args", default="", help="more rl_zoo3.train arguments of the fine-tuning runs, "
                         'e.g. "--hyperparams cql_alpha:0.0" (SAC fine-tuning)')  # fmt: skip
     parser.add_argument("--report-only", action="store_true", help="only make the table and figures from results/")
@@ -86,15 +68,12 @@ def main(argv: list[str] | None = None) -> None:
         if not args.report_only:
             quick = QUICK if args.quick else {}
             seeds = args.seeds or (list(THESIS_SEEDS[:1]) if args.quick else list(THESIS_SEEDS))
-            settings = Settings(
-                n_timesteps=args.n_timesteps if args.n_timesteps is not None else quick.get("n_timesteps"),
-                eval_freq=args.eval_freq if args.eval_freq is not None else quick.get("eval_freq"),
-                eval_episodes=args.eval_episodes if args.eval_episodes is not None else quick.get("eval_episodes"),
-                episodes=args.episodes if args.episodes is not None else quick.get("episodes", 100),
-                zoo_args=_split("--zoo-args", args.zoo_args),
-                dataset=args.dataset,
-                finetune_args=_split("--finetune-args", args.finetune_args),
-            )
+            given = {name: getattr(args, name) for name in ("n_timesteps", "eval_freq", "eval_episodes", "episodes")}
+            numbers = {name: value if value is not None else quick.get(name) for name, value in given.items()}
+            if numbers["episodes"] is None:
+                numbers["episodes"] = 100
+            settings = Settings(**numbers, zoo_args=_split("--zoo-args", args.zoo_args), dataset=args.dataset,
+                                finetune_args=_split("--finetune-args", args.finetune_args))  # fmt: skip
             save_freq = args.save_freq if args.save_freq is not None else quick.get("save_freq", 10_000)
             protocol = Protocol(
                 results, args.algos, seeds, args.tasks, settings, save_freq, args.workers, args.finetune, args.ray

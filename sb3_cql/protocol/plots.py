@@ -62,27 +62,33 @@ def _runs(results: ResultsFolder, training: list[dict[str, Any]], finetuned: boo
     return {algo: runs[algo] for algo in algo_order(runs)}
 
 
-def _band(axis: plt.Axes, steps: np.ndarray, curves: np.ndarray, label: str) -> None:
+def _band(axis: plt.Axes, series: list[tuple[np.ndarray, np.ndarray]], label: str) -> bool:
+    """The seeds' mean and 95% CI on the steps they all have; whether there was any series to plot."""
+    if not series:
+        return False
+    steps, curves = _on_common_steps(series)
     mean, half = mean_ci95(curves)
     (line,) = axis.plot(steps, mean, label=f"{label} ({len(curves)} seeds)")
     axis.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.25)
+    return True
+
+
+def _save(figure: plt.Figure, path: Path) -> None:
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
 
 
 def training_success(results: ResultsFolder, runs: dict[str, list[Run]], pid_rate: float | None, path: Path) -> None:
     """Figure 5.1 from the runs' stitched evaluations."""
     figure, axis = plt.subplots(figsize=(7, 4))
     for algo, algo_runs in runs.items():
-        series = [run.evaluations() for run in algo_runs if len(run.evaluations()[0])]
-        if series:
-            steps, curves = _on_common_steps(series)
-            _band(axis, steps, curves, algo.upper())
+        _band(axis, [run.evaluations() for run in algo_runs if len(run.evaluations()[0])], algo.upper())
     if pid_rate is not None:
         axis.axhline(pid_rate, color="black", linestyle="--", label="PID (final evaluation)")
     axis.set(xlabel="training step", ylabel="evaluation success rate", ylim=(-0.05, 1.05), title="Panda-v0, during training")
     axis.legend()
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
-    plt.close(figure)
+    _save(figure, path)
 
 
 def finetune_success(runs: dict[str, list[Run]], summary: dict[str, dict[str, Any]], task: str, path: Path) -> None:
@@ -90,10 +96,7 @@ def finetune_success(runs: dict[str, list[Run]], summary: dict[str, dict[str, An
     the models they started from and of the regrasping PD controller."""
     figure, axis = plt.subplots(figsize=(7, 4))
     for row, row_runs in runs.items():
-        series = [run.evaluations() for run in row_runs if len(run.evaluations()[0])]
-        if series:
-            steps, curves = _on_common_steps(series)
-            _band(axis, steps, curves, row_label(row))
+        if _band(axis, [run.evaluations() for run in row_runs if len(run.evaluations()[0])], row_label(row)):
             base = finetune_parts(row)[0]
             start = summary.get(base, {}).get(task)
             if start is not None:
@@ -104,9 +107,7 @@ def finetune_success(runs: dict[str, list[Run]], summary: dict[str, dict[str, An
     axis.set(xlabel="env step of the fine-tuning", ylabel="evaluation success rate", ylim=(-0.05, 1.05),
              title=f"{task}, during online fine-tuning")  # fmt: skip
     axis.legend()
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
-    plt.close(figure)
+    _save(figure, path)
 
 
 def training_losses(runs: dict[str, list[Run]], path: Path) -> None:
@@ -114,16 +115,11 @@ def training_losses(runs: dict[str, list[Run]], path: Path) -> None:
     figure, axes = plt.subplots(1, len(LOSS_TAGS), figsize=(6 * len(LOSS_TAGS), 4))
     for axis, (tag, label) in zip(axes, LOSS_TAGS.items(), strict=True):
         for algo, algo_runs in runs.items():
-            series = [scalars for scalars in (run.scalars(tag) for run in algo_runs) if len(scalars[0])]
-            if series:
-                steps, curves = _on_common_steps(series)
-                _band(axis, steps, curves, algo.upper())
+            _band(axis, [scalars for scalars in (run.scalars(tag) for run in algo_runs) if len(scalars[0])], algo.upper())
         axis.set(xlabel="training step", ylabel=label, title=tag)
         if axis.has_data():
             axis.legend()
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
-    plt.close(figure)
+    _save(figure, path)
 
 
 def final_success(summary: dict[str, dict[str, Any]], evaluations: list[dict[str, Any]], tasks: list[str], path: Path) -> None:
@@ -145,9 +141,7 @@ def final_success(summary: dict[str, dict[str, Any]], evaluations: list[dict[str
     axis.set_xticks(np.arange(len(tasks)), tasks)
     axis.set(ylabel="success rate", ylim=(-0.05, 1.05), title="Final evaluation of the best models")
     axis.legend()
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
-    plt.close(figure)
+    _save(figure, path)
 
 
 def alignment_histograms(rows: dict[str, list[dict[str, Any]]], task: str, path: Path) -> None:
@@ -175,9 +169,7 @@ def alignment_histograms(rows: dict[str, list[dict[str, Any]]], task: str, path:
     for axis in axes[:, 0]:
         axis.set_ylabel("share of closings")
     figure.suptitle(f"{task}: how the fingers closed on a lying cylinder (90: across its axis)")
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
-    plt.close(figure)
+    _save(figure, path)
 
 
 def episode_frames(
@@ -223,9 +215,7 @@ def filmstrip(policies: dict[str, tuple[Any, dict[str, Any]]], env_id: str, seed
                 axis.set_title(f"step {steps[column]}", fontsize=8)
         row[0].text(-0.05, 0.5, name, transform=row[0].transAxes, ha="right", va="center", fontsize=10)
     figure.suptitle(f"{env_id}, episode seed {seed}")
-    figure.tight_layout()
-    figure.savefig(path, dpi=DPI)
-    plt.close(figure)
+    _save(figure, path)
 
 
 def make_figures(results: ResultsFolder, report: dict[str, Any], filmstrips: bool = True) -> list[Path]:

@@ -45,10 +45,7 @@ def read_json(path: Path) -> Any | None:
 
 
 class ResultsFolder:
-    """Paths of the protocol's results folder (see the module docstring).
-
-    :param root: the folder (``--results-dir``).
-    """
+    """Paths of the protocol's results folder ``root`` (``--results-dir``; the module docstring has the layout)."""
 
     def __init__(self, root: Path | str) -> None:
         self.root = Path(root).resolve()
@@ -91,19 +88,12 @@ def system_info() -> dict[str, Any]:
                 break
     except OSError:
         pass
+
+    def git(*words: str) -> str:
+        return subprocess.run(["git", *words], cwd=Path(__file__).parent, capture_output=True, text=True, check=True).stdout
+
     try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = bool(
-            subprocess.run(
-                ["git", "status", "--porcelain", "--untracked-files=no"],
-                cwd=Path(__file__).parent,
-                capture_output=True,
-                text=True,
-                check=True,
-            ).stdout.strip()
-        )
+        commit, dirty = git("rev-parse", "HEAD").strip(), bool(git("status", "--porcelain", "--untracked-files=no").strip())
     except (OSError, subprocess.CalledProcessError):
         commit, dirty = None, None
     versions = {}

@@ -114,18 +114,11 @@ def markdown_table(summary: dict[str, dict[str, Any]], tasks: list[str], episode
         lines += ["", "Rows \"+ online on TASK\": each seed's best model of the algorithm fine-tuned online with "
                   "interaction with TASK (hyperparams/cql_finetune.yml), then scored like the others: on TASK they have "
                   "trained on the task they are scored on."]  # fmt: skip
-    lines += [
-        "",
-        f"Interquartile mean over seeds [95% stratified-bootstrap confidence interval, {BOOTSTRAP_REPS} resamples, rliable].",
-        "",
-        header.rstrip("\n"),
-    ]
+    lines += ["", f"Interquartile mean over seeds [95% stratified-bootstrap confidence interval, {BOOTSTRAP_REPS} resamples, "
+              "rliable].", "", header.rstrip("\n")]  # fmt: skip
     for algo in summary:
-        cells = [
-            f"{summary[algo][task]['iqm']:.3f} [{summary[algo][task]['iqm_ci95'][0]:.3f}, "
-            f"{summary[algo][task]['iqm_ci95'][1]:.3f}]"
-            for task in tasks
-        ]
+        entries = [summary[algo][task] for task in tasks]
+        cells = [f"{entry['iqm']:.3f} [{entry['iqm_ci95'][0]:.3f}, {entry['iqm_ci95'][1]:.3f}]" for entry in entries]
         lines.append(f"| {row_label(algo)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -185,24 +178,12 @@ def make_report(results: ResultsFolder, tasks: list[str]) -> dict[str, Any]:
     matrices = success_matrix(evaluations, tasks)
     summary = summarise(matrices, tasks) if matrices else {}
     finetuning = finetune_runs(results, training, evaluations)
-    report = {
-        "settings": protocol.get("settings"),
-        "train_env": protocol.get("train_env"),
-        "tasks": tasks,
-        "system": system,
-        "summary": summary,
-        "training": training,
-        "evaluations": evaluations,
-        "finetuning": finetuning,
-    }
+    report = {"settings": protocol.get("settings"), "train_env": protocol.get("train_env"), "tasks": tasks, "system": system,
+              "summary": summary, "training": training, "evaluations": evaluations, "finetuning": finetuning}  # fmt: skip
     write_json(results.root / "results.json", report)
-    machine = {
-        "commit": system.get("commit"),
-        "cpu_model": system.get("cpu_model"),
-        "cpu_count": system.get("cpu_count"),
-        "torch": system.get("versions", {}).get("torch"),
-        "stable-baselines3": system.get("versions", {}).get("stable-baselines3"),
-    }
+    versions = system.get("versions", {})
+    machine = {**{key: system.get(key) for key in ("commit", "cpu_model", "cpu_count")},
+               **{key: versions.get(key) for key in ("torch", "stable-baselines3")}}  # fmt: skip
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, extrasaction="ignore")
     writer.writeheader()

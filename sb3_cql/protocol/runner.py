@@ -1,7 +1,6 @@
 """The protocol's units of work, each recorded on disk when done: train an algorithm with one seed (RL-Zoo3 in a
 subprocess, resumed from its last checkpoint after a kill), fine-tune its best model online on a task (the same way),
-evaluate a policy on one task; and their scheduling over worker processes.
-"""
+evaluate a policy on one task."""
 
 from __future__ import annotations
 
@@ -26,9 +25,7 @@ from sb3_cql.protocol.runs import Run
 TRAIN_ENV = "Panda-v0"
 #: The thesis's five seeds.
 THESIS_SEEDS = (117, 12321, 7456, 3426, 573)
-#: The scripted PD controllers (``envs.CONTROLLERS``: the thesis's, ours that regrasps, whose noisy runs are the data,
-#: the same with a random yaw at each attempt, and the reference that aligns the fingers with a fallen cylinder):
-#: evaluated, never trained.
+#: The scripted PD controllers (``envs.CONTROLLERS``): evaluated, never trained.
 SCRIPTED = tuple(envs.CONTROLLERS)
 #: Rows of the thesis's Table 5.1, BC, and the regrasping PD controller (the other scripted rows on request).
 DEFAULT_ALGOS = ("cql", "bc", "pid", "pid-regrasp", "sac")
@@ -56,18 +53,10 @@ class UnitsFailed(ProtocolError):
 
 @dataclass
 class Settings:
-    """What a results folder's numbers depend on: a re-run must use the same (see :meth:`check_folder`).
-
-    :param n_timesteps: training steps (the zoo's ``-n``); ``None``: each algorithm's config.
-    :param eval_freq: steps between evaluations during training (``--eval-freq``); ``None``: the config's.
-    :param eval_episodes: episodes of those evaluations (``--eval-episodes``); ``None``: the config's.
-    :param episodes: episodes of each final evaluation.
-    :param zoo_args: extra arguments of every ``rl_zoo3.train`` call.
-    :param dataset: the dataset every offline algorithm (a config with a ``dataset``) trains on; ``None``: each
-        config's. The thesis's size: ``sb3cql/Panda-v0/noisy-regrasp-delta-v0`` (10,000 episodes).
-    :param finetune_args: extra arguments of the fine-tuning runs' ``rl_zoo3.train`` calls (``zoo_args`` are the
-        offline trainings'; a fine-tuned model keeps their settings).
-    """
+    """What a results folder's numbers depend on: a re-run must use the same (:meth:`check_folder`). The options of
+    ``python -m sb3_cql.protocol`` of the same names; ``None``: each algorithm's config. ``zoo_args`` are the offline
+    trainings' extra ``rl_zoo3.train`` arguments, ``finetune_args`` the fine-tuning runs' (a fine-tuned model keeps
+    the former's settings); ``dataset`` replaces the ``dataset`` of every offline algorithm's config."""
 
     n_timesteps: int | None = None
     eval_freq: int | None = None
@@ -78,8 +67,8 @@ class Settings:
     finetune_args: list[str] = field(default_factory=list)
 
     def dataset_args(self, config_dataset: str | None) -> list[str]:
-        """The zoo arguments with ``dataset`` in place of ``config_dataset`` (an online algorithm's ``None`` stays),
-        as an item of the zoo arguments' own ``--hyperparams`` if they have one (a second flag would replace it)."""
+        """The zoo arguments with ``dataset`` in place of ``config_dataset`` (an online algorithm's ``None`` stays), in
+        their own ``--hyperparams`` if they have one (a second flag would replace it)."""
         if self.dataset is None or config_dataset is None:
             return list(self.zoo_args)
         item = f"dataset:{self.dataset!r}"
@@ -102,20 +91,11 @@ class Settings:
 
 @dataclass
 class Protocol:
-    """The whole protocol: which algorithms and seeds, where, with how many workers.
-
-    :param results: the results folder.
-    :param algos: RL-Zoo3 names of the algorithms, and the PD controllers' names (:data:`SCRIPTED`).
-    :param seeds: training and evaluation seeds.
-    :param tasks: evaluation tasks.
-    :param settings: the settings the numbers depend on.
-    :param save_freq: steps between checkpoints, the points a killed training resumes from.
-    :param workers: worker processes (each zoo process gets one torch thread when there are several).
-    :param finetune: tasks on which each seed's best offline model of every algorithm that fine-tunes (CQL) is
-        fine-tuned online (``hyperparams/cql_finetune.yml``), each a row of its own (:data:`FINETUNE_ROW`).
-    :param ray_address: run the units as Ray tasks on the cluster at this address (``auto``, ``host:port``,
-        ``ray://host:port``) instead of local processes; the results folder must be on storage every node sees.
-    """
+    """The whole protocol: which algorithms (RL-Zoo3 names, and :data:`SCRIPTED`'s) and seeds, evaluated on which
+    tasks, where, with how many workers (each zoo process gets one torch thread when there are several) or on the
+    Ray cluster at ``ray_address``; ``save_freq``: steps between checkpoints, where a killed training resumes;
+    ``finetune``: tasks on which each seed's best model of every algorithm that fine-tunes is fine-tuned online
+    (``hyperparams/cql_finetune.yml``), each a row of its own (:data:`FINETUNE_ROW`)."""
 
     results: ResultsFolder
     algos: list[str]
@@ -153,8 +133,7 @@ class Protocol:
                 _check_dataset(self._dataset_id(algo, config_file(algo, TRAIN_ENV)))
 
     def _check_numbers(self) -> None:
-        """Every count the protocol is given is one it can run with (a final evaluation of 0 episodes would record
-        NaN as a result)."""
+        """Every count the protocol is given is one it can run with."""
         settings = self.settings
         counts = {"--workers": self.workers, "--episodes": settings.episodes, "--save-freq": self.save_freq,
                   "--n-timesteps": settings.n_timesteps, "--eval-freq": settings.eval_freq,
@@ -175,8 +154,7 @@ class Protocol:
                 raise ProtocolError(f"--seeds must be integers >= 0, got {seed!r}")
 
     def _check_results_folder(self) -> None:
-        """The results folder is a folder, or can be made, where this user may write; and a ``--ray`` cluster answers:
-        refused before anything is written."""
+        """The results folder is (or can be made) a folder this user may write in; a ``--ray`` cluster answers."""
         root = self.results.root
         if root.exists() and not root.is_dir():
             raise ProtocolError(f"--results-dir {root} is a file: give a folder")
@@ -215,8 +193,7 @@ def config_dataset(config: Path) -> str | None:
 
 
 def _check_dataset(dataset_id: str | None) -> None:
-    """A dataset a training needs must exist, or be a standard one that the training collects first: otherwise the
-    error names it (missing, or partial: an interrupted collection) before any work starts."""
+    """A dataset a training needs exists, or is a standard one that the training collects first."""
     from sb3_cql.data import DatasetError, load_dataset
     from sb3_cql.data.collection import standard_collection
     from sb3_cql.data.ids import dataset_exists
@@ -237,9 +214,8 @@ def _log_tail(path: Path, lines: int = LOG_TAIL_LINES) -> str:
 
 def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: str | None = None) -> dict[str, Any]:
     """Train ``algo`` on :data:`TRAIN_ENV` with ``seed`` through ``python -m rl_zoo3.train``, continuing the run on
-    disk from its latest saved model if there is one (``-i``, ``-n`` the steps left); record and return the result.
-    With ``task``, fine-tune the recorded best model of that training online on ``task`` instead (the row
-    :data:`FINETUNE_ROW`), resumed the same way (a checkpoint brings its online transitions back).
+    disk from its latest saved model (``-i``, ``-n`` the steps left); record and return the result. With ``task``,
+    fine-tune that training's recorded best model online on ``task`` instead (the row :data:`FINETUNE_ROW`).
 
     :raises ProtocolError: if a zoo process fails (with the tail of its log) or makes no progress.
     """
@@ -305,23 +281,14 @@ def train(protocol: Protocol, algo: str, seed: int, threads: int | None, task: s
         if progress is None or (latest is not None and progress[0] <= latest[0]):
             raise ProtocolError(f"{label}: segment {segment} saved no progress; end of {log}:\n{_log_tail(log)}")
     best_step, best_rate, best_path = run.best_model()
-    record = {
-        "algo": row,
-        "seed": seed,
-        "train_env": env_id,
-        "log_folder": str(log_folder.relative_to(results.root)),
-        "started_from": None if start_model is None else str(start_model.relative_to(results.root)),
-        "training_steps": run.n_timesteps,
-        "n_timesteps_override": settings.n_timesteps,
-        "best_step": best_step,
-        "best_eval_success_rate": best_rate,
-        "best_model": str(best_path.relative_to(results.root)),
-        "env_kwargs": run.env_kwargs,
-        "segments": [
-            {"folder": s.folder.name, "offset": s.offset, "cut": s.cut, "resumed_from": s.resumed_from} for s in run.segments
-        ],
-        "train_wall_time_s": round(_wall_time(run, times), 1),
-    }
+    segments = [{"folder": s.folder.name, "offset": s.offset, "cut": s.cut, "resumed_from": s.resumed_from}
+                for s in run.segments]  # fmt: skip
+    record = {"algo": row, "seed": seed, "train_env": env_id, "log_folder": str(log_folder.relative_to(results.root)),
+              "started_from": None if start_model is None else str(start_model.relative_to(results.root)),
+              "training_steps": run.n_timesteps, "n_timesteps_override": settings.n_timesteps, "best_step": best_step,
+              "best_eval_success_rate": best_rate, "best_model": str(best_path.relative_to(results.root)),
+              "env_kwargs": run.env_kwargs, "segments": segments,
+              "train_wall_time_s": round(_wall_time(run, times), 1)}  # fmt: skip
     write_json(results.training_record(row, seed), record)
     return record
 
@@ -369,16 +336,8 @@ def evaluate(protocol: Protocol, algo: str, seed: int, task: str, threads: int |
         model = str(results.root / training["best_model"])
         policy, env_kwargs = load_policy(model, finetune_parts(algo)[0], task), training["env_kwargs"]
     rate = success_rate(policy, task, settings.episodes, seed, env_kwargs=env_kwargs)
-    record = {
-        "algo": algo,
-        "seed": seed,
-        "task": task,
-        "success_rate": rate,
-        "episodes": settings.episodes,
-        "best_step": None if training is None else training["best_step"],
-        "training_steps": None if training is None else training["training_steps"],
-        "train_wall_time_s": None if training is None else training["train_wall_time_s"],
-        "eval_wall_time_s": round(time.time() - start, 1),
-    }
+    trained = {key: training and training[key] for key in ("best_step", "training_steps", "train_wall_time_s")}
+    record = {"algo": algo, "seed": seed, "task": task, "success_rate": rate, "episodes": settings.episodes, **trained,
+              "eval_wall_time_s": round(time.time() - start, 1)}  # fmt: skip
     write_json(results.evaluation_record(algo, seed, task), record)
     return record

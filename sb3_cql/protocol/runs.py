@@ -5,9 +5,8 @@ A run (one algorithm, one seed) lives in a zoo log folder ``<run dir>/<algo>/``.
 the zoo's step count at 0, so its steps are offset by the checkpoint's. A later segment that resumed from global
 step ``g`` discards whatever earlier segments did after ``g``: the run's history is everything up to each
 segment's cut. A fine-tuning run's first segment starts (``-i``) from a model outside the run, at step 0.
-Everything here is read back from the zoo's own files (``args.yml``, ``config.yml``,
-``evaluations.npz``, the models' ``num_timesteps``), so a run killed at any moment, even while writing a file, is
-read correctly: an unreadable file counts as absent.
+Everything is read back from the zoo's own files, so a run killed at any moment is read correctly: an unreadable file
+counts as absent.
 """
 
 from __future__ import annotations
@@ -39,8 +38,7 @@ def model_timesteps(path: Path) -> int | None:
 
 
 def checkpoint_timesteps(path: Path) -> int | None:
-    """The step in the name of a zoo checkpoint ``rl_model_<N>_steps.zip`` (SB3's ``CheckpointCallback``), else
-    ``None``."""
+    """The step in the name of a zoo checkpoint ``rl_model_<N>_steps.zip``, else ``None``."""
     parts = path.stem.rsplit("_", 2)  # rl_model, <N>, steps
     return int(parts[1]) if len(parts) == 3 and parts[2] == "steps" and parts[1].isdigit() else None
 
@@ -54,16 +52,10 @@ def _load_yaml(path: Path) -> dict | None:
 
 @dataclass
 class Segment:
-    """One zoo process of a run.
-
-    :param folder: its log folder ``<run dir>/<algo>/<env_id>_<N>``.
-    :param number: ``N``.
-    :param n_timesteps: steps it was asked to make.
-    :param offset: global step at which it started (0, or that of the checkpoint it resumed from).
-    :param cut: global step after which its history was discarded by a later segment (``None``: kept whole).
-    :param resumed_from: the checkpoint it continued (``<segment folder>/<file>``), if any.
-    :param env_kwargs: keywords of its envs (the command line's, else the config's): the action mode, for one.
-    """
+    """One zoo process of a run, in its log folder ``<run dir>/<algo>/<env_id>_<N>`` (``number`` N), asked to make
+    ``n_timesteps`` steps from global step ``offset`` (that of the checkpoint it ``resumed_from``, ``<segment
+    folder>/<file>``), its history discarded by a later segment after global step ``cut`` (``None``: kept whole);
+    ``env_kwargs``: its envs' keywords (the command line's, else the config's)."""
 
     folder: Path
     number: int
@@ -99,12 +91,8 @@ class Segment:
 
 @dataclass
 class Run:
-    """The stitched history of one zoo training run.
-
-    :param log_folder: ``<run dir>/<algo>``, the zoo's ``-f`` folder joined with the algorithm.
-    :param env_id: the training task.
-    :param segments: its segments in order, offsets and cuts resolved.
-    """
+    """The stitched history of one zoo training run on ``env_id`` in ``log_folder`` (``<run dir>/<algo>``): its
+    ``segments`` in order, offsets and cuts resolved."""
 
     log_folder: Path
     env_id: str
@@ -167,14 +155,11 @@ class Run:
 
     def evaluations(self) -> tuple[np.ndarray, np.ndarray]:
         """Global timesteps and success rates of every evaluation in the run's history, in order."""
-        steps, rates = [], []
-        for segment in self.segments:
-            local_steps, local_rates = segment.evaluations()
-            steps.append(local_steps + segment.offset)
-            rates.append(local_rates)
-        if not steps:
+        if not self.segments:
             return np.zeros(0, dtype=int), np.zeros(0)
-        return np.concatenate(steps), np.concatenate(rates)
+        evaluations = [segment.evaluations() for segment in self.segments]
+        steps = [local_steps + segment.offset for segment, (local_steps, _) in zip(self.segments, evaluations, strict=True)]
+        return np.concatenate(steps), np.concatenate([rates for _, rates in evaluations])
 
     def tensorboard_folder(self, segment_name: str) -> Path:
         """Where the segment ``segment_name`` (``<env_id>_<N>``) writes TensorBoard logs: given to the zoo as ``-tb``."""

@@ -23,11 +23,9 @@ RAY_TASK_ENV = ("MINARI_DATASETS_PATH", "MPLBACKEND")
 @contextmanager
 def _units_executor(protocol: Protocol) -> Iterator[tuple[Any, int]]:
     """Where the protocol's units run, and how many at a time: ``protocol.workers`` local processes
-    (:class:`~sb3_cql.processes.WorkerPool`: spawned clean, dying with the runner and leaving Ctrl-C to it, which ends
-    them at once, each taking its zoo run along: what is recorded stays, for the same command to continue), or with
-    ``protocol.ray_address`` Ray tasks of one CPU each (their zoo runs get one torch thread), as many at a time as the
-    cluster has CPUs unless ``workers`` says otherwise; a task whose worker or node died is run again (3 times),
-    continuing from its checkpoints."""
+    (:class:`~sb3_cql.processes.WorkerPool`: they die with the runner, and Ctrl-C ends them at once), or with
+    ``protocol.ray_address`` Ray tasks of one CPU each, as many at a time as the cluster has CPUs unless ``workers``
+    says otherwise (a task whose worker or node died runs again, from its checkpoints)."""
     if protocol.ray_address is None:
         with WorkerPool(protocol.workers) as pool:
             yield pool, protocol.workers
@@ -66,9 +64,9 @@ def _exclusive(results: ResultsFolder) -> Iterator[None]:
 
 
 def run_protocol(protocol: Protocol) -> dict[str, int]:
-    """Do every unit of ``protocol`` not yet recorded, ``protocol.workers`` at a time, printing one line per unit.
+    """Do every unit of ``protocol`` not yet recorded, ``protocol.workers`` at a time, printing one line per unit;
+    return the counts of units ``done`` now, ``skipped`` (recorded before) and ``failed``.
 
-    :return: counts of units ``done`` now, ``skipped`` (recorded before) and ``failed``.
     :raises UnitsFailed: after the other units, if any failed.
     """
     protocol.check()
