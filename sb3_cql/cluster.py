@@ -1,8 +1,6 @@
 """Running the package's independent units of work (collection chunks, the protocol's trainings and evaluations) on a
-Ray cluster: ``--ray ADDRESS`` of ``python -m sb3_cql.data collect`` and ``python -m sb3_cql.protocol``.
-
-Ray is an optional extra (``pip install -e ".[ray]"``); every node of the cluster needs this package installed, as
-the machine that starts the command has it. See the documentation's *Running on a cluster* page.
+Ray cluster: ``--ray ADDRESS`` of ``python -m sb3_cql.data collect`` and ``python -m sb3_cql.protocol``. Ray is an
+optional extra (``pip install -e ".[ray]"``), needed with this package on every node (docs: *Running on a cluster*).
 """
 
 from __future__ import annotations
@@ -52,11 +50,9 @@ def check_address(address: str) -> None:
 
 def _unreachable(address: str) -> str | None:
     """Why no Ray cluster can be connected to at a ``host:port`` or ``ray://host:port`` address, found within
-    :data:`PROBE_TIMEOUT_S` seconds: nothing answers there, or something that is not Ray does (a web server, Ray's
-    dashboard: ``ray.init`` would wait on it for minutes). Ray's GCS and client server speak gRPC, HTTP/2: the probe
-    sends HTTP/2's connection preface and an empty SETTINGS frame, which a gRPC server answers with a SETTINGS frame of
-    its own and a web server with an ``HTTP/1.x`` error. ``None`` where it answers as gRPC does, or for an address Ray
-    resolves itself (``auto``), or with TLS (``RAY_USE_TLS``), where the probe cannot look inside."""
+    :data:`PROBE_TIMEOUT_S` seconds: nothing answers, or something that is not Ray (a web server, Ray's dashboard).
+    Ray speaks gRPC (HTTP/2): the probe sends HTTP/2's preface and an empty SETTINGS frame, which a gRPC server answers
+    with a SETTINGS frame. ``None`` where it does, or for ``auto``, or with TLS (``RAY_USE_TLS``)."""
     import os
     import socket
 
@@ -129,13 +125,7 @@ class RayExecutor:
     """A ``concurrent.futures`` executor whose calls are Ray tasks on the cluster at ``address``, each with
     ``num_cpus`` CPUs, the environment variables ``env_vars`` and Ray's retries of a task whose worker or node died
     (``max_retries``): ``submit`` returns the task's ``Future``, and the exception of a failed call is the function's
-    own (not Ray's wrapper). Leaving the ``with`` block cancels the tasks still running.
-
-    :param address: the cluster (``auto``, ``host:port`` or ``ray://host:port``).
-    :param num_cpus: CPUs of each task (its torch threads).
-    :param env_vars: environment variables the tasks see (the nodes' own environment otherwise).
-    :param max_retries: runs of a task again after its worker process or node died.
-    """
+    own (not Ray's wrapper). Leaving the ``with`` block cancels the tasks still running."""
 
     def __init__(self, address: str, num_cpus: float = 1, env_vars: dict[str, str] | None = None, max_retries: int = 3):
         self.ray = connect(address)

@@ -65,8 +65,7 @@ DEFAULT_ACTION_MODE = default_action_mode()
 @dataclasses.dataclass
 class EpisodeOutcome:
     """One evaluation episode: its seed, whether it succeeded, and :func:`envs.pd_controller.closing_angles` of its
-    observations (the hand's closing direction against a lying cylinder's axis, in degrees, at each moment the
-    fingers began to close on the object; ``None`` where the cylinder stood)."""
+    observations (degrees; ``None`` where the cylinder stood)."""
 
     seed: int
     success: bool
@@ -80,15 +79,10 @@ def episode_outcomes(
     deterministic: bool = True,
     env_kwargs: dict[str, Any] | None = None,
 ) -> list[EpisodeOutcome]:
-    """``policy``'s episodes of ``env_id``, episode ``i`` reset with ``seeds[i]`` (and a PD controller seeded with
-    it, for its random yaws): an episode is replayed by resetting the env with its seed (``env.reset(seed=s)``),
-    whatever ran before. The policy's state goes from one step to the next, SB3-style.
+    """``policy``'s (an SB3 model or :class:`envs.PDController`) episodes of ``env_id`` made with ``env_kwargs``,
+    episode ``i`` reset with ``seeds[i]`` (and a PD controller seeded with it): an episode is replayed by resetting
+    the env with its seed, whatever ran before. The policy's state goes from one step to the next, SB3-style.
 
-    :param policy: an SB3 model or :class:`envs.PDController`.
-    :param env_id: the task.
-    :param seeds: one seed per episode.
-    :param deterministic: use the policy's deterministic actions.
-    :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
     :raises ValueError: for a policy whose spaces are not the env's (:func:`~sb3_cql.data.check_spaces`).
     """
     env = gym.make(env_id, **(env_kwargs or {}))
@@ -132,7 +126,7 @@ ANGLE_BINS = np.arange(0, 91, 10)
 
 def alignment_summary(outcomes: Sequence[EpisodeOutcome]) -> str:
     """One line on how the fingers closed on lying cylinders in ``outcomes``: a histogram of the closing angles in
-    ``ANGLE_BINS``, the episodes that had such a closing, and how many closings were on an upright cylinder."""
+    ``ANGLE_BINS``, and how many closings were on an upright cylinder."""
     angles = [angle for outcome in outcomes for angle in outcome.closing_angles if angle is not None]
     upright = sum(angle is None for outcome in outcomes for angle in outcome.closing_angles)
     lying = sum(any(angle is not None for angle in outcome.closing_angles) for outcome in outcomes)
@@ -154,17 +148,11 @@ def success_rate(
     env_kwargs: dict[str, Any] | None = None,
     seeds: Sequence[int] | None = None,
 ) -> float:
-    """Fraction of ``n_episodes`` episodes of ``env_id`` that ``policy`` (anything with SB3's ``predict``) succeeds in.
+    """Fraction of ``n_episodes`` episodes of ``env_id`` (made with ``env_kwargs``) that ``policy`` (an SB3 model or
+    :class:`envs.PDController`) succeeds in: SB3's ``evaluate_policy`` on a ``DummyVecEnv`` seeded once with ``seed``,
+    whose generator seeds the next episodes (a PD controller is seeded with it too). With ``seeds``, one episode per
+    seed, reset with it (:func:`episode_successes`), instead.
 
-    :param policy: an SB3 model or :class:`envs.PDController`.
-    :param env_id: the task.
-    :param n_episodes: episodes (without ``seeds``).
-    :param seed: seed of the env's first reset (without ``seeds``): SB3's ``evaluate_policy`` on a ``DummyVecEnv``
-        seeded once, whose generator seeds the next episodes; a PD controller is seeded with it too.
-    :param deterministic: use the policy's deterministic actions.
-    :param env_kwargs: keywords of the env (``action_mode``: the one the policy was trained in).
-    :param seeds: one episode per seed, each reset with its seed (:func:`episode_successes`); ``n_episodes`` and
-        ``seed`` are then not used.
     :raises ValueError: for a policy whose ``observation_space`` or ``action_space`` is not the env's.
     """
     if seeds is not None:
@@ -233,8 +221,8 @@ def format_seeds(seeds: Sequence[int]) -> str:
 
 
 class EnvKwargs(StoreDict):
-    """RL-Zoo3's ``KEY:VALUE`` dict action, with a usage error (not a traceback from ``eval``) for an item that is
-    not one: typically the model's path, swallowed when it comes after ``--env-kwargs``."""
+    """RL-Zoo3's ``KEY:VALUE`` dict action, with a usage error for an item that is not one (typically the model's
+    path, swallowed when it comes after ``--env-kwargs``)."""
 
     def __call__(self, parser, namespace, values, option_string=None):
         for item in values:
@@ -264,8 +252,7 @@ def model_file(path: str) -> Path | None:
 
 
 def check_output(parser: argparse.ArgumentParser, output: Path, model: str) -> None:
-    """A one-line error, before any episode, for an ``--output`` that could not be written or would replace an
-    input: a folder, the model's own file (the same file by ``os.path.samefile``, whatever the path), or a place
+    """A one-line error, before any episode, for an ``--output`` that is a folder, the model's own file, or a place
     without write permission."""
     try:
         is_dir, exists = output.is_dir(), output.exists()

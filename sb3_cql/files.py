@@ -1,9 +1,6 @@
-"""Files that are whole or absent: the package's one atomic write. A file is written under a temporary name beside
-its own, flushed to disk, renamed over it, and the rename flushed to disk too, so that a kill, an error or a power
-cut at any instant leaves the old file or the new one, whole. The datasets' files (:mod:`sb3_cql.data.store`), the
-protocol's records (:mod:`sb3_cql.protocol.records`), an evaluation's ``--output`` and model and replay-buffer saves
-(:mod:`sb3_cql.common.atomic`) are all written through :func:`replace_atomically`. Standard library only: it is
-imported by the data package and the commands before torch.
+"""Files that are whole or absent: the package's one atomic write (:func:`replace_atomically`), which the datasets,
+the protocol's records, an evaluation's ``--output`` and model saves go through: a kill, an error or a power cut at
+any instant leaves the old file or the new one, whole. Standard library only: the commands import it before torch.
 """
 
 from __future__ import annotations
@@ -19,9 +16,8 @@ from typing import Any
 
 
 def temporary_path(path: Path) -> Path:
-    """The temporary name a write of ``path`` goes to: hidden, beside it, for this write alone (two processes may write
-    one path), and ending in ``.tmp``: SB3 adds no suffix to it, and nothing that looks for models (``*.zip``) or episode
-    files takes one that a kill left behind."""
+    """The temporary name a write of ``path`` goes to: hidden, beside it, for this write alone, and ending in ``.tmp``
+    (SB3 adds no suffix to it, and nothing that looks for models or episode files takes one a kill left behind)."""
     return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
 
 
@@ -39,14 +35,9 @@ def replace_atomically(
     path: str | os.PathLike, write: Callable[[Path], Any], before_rename: Callable[[], Any] | None = None
 ) -> None:
     """Make ``path`` the file that ``write(temporary)`` writes, whole or not at all: ``write`` writes a temporary file
-    in the same folder (:func:`temporary_path`; missing folders are made), which is flushed to disk, renamed over
-    ``path``, and the folder flushed. Whatever stops it (an error, Ctrl-C), the temporary file is removed; an
-    ``OSError`` of the write names ``path`` (not the temporary file) and its cause, unchained.
-
-    :param path: the file.
-    :param write: writes the file at the path it is given (SB3's ``save`` does, as does :func:`write_atomically`).
-    :param before_rename: called once the temporary file is on disk, before the rename (a test's crash point).
-    """
+    in the same folder (missing folders are made), which is flushed to disk, renamed over ``path``, and the folder
+    flushed; ``before_rename`` (a test's crash point) is called just before the rename. Whatever stops it, the
+    temporary file is removed; an ``OSError`` of the write names ``path`` (not the temporary file), unchained."""
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     temporary = temporary_path(final)
@@ -67,8 +58,7 @@ def replace_atomically(
 
 
 def write_atomically(path: str | os.PathLike, data: bytes | str) -> None:
-    """Write ``data`` (text as UTF-8) to ``path`` through :func:`replace_atomically`: a reader never sees, and a killed
-    writer never leaves, half a file. The file's permissions are those of any file the user writes (the umask's)."""
+    """Write ``data`` (text as UTF-8) to ``path`` through :func:`replace_atomically`, with the umask's permissions."""
     content = data.encode() if isinstance(data, str) else data
 
     def write(temporary: Path) -> None:
@@ -92,8 +82,7 @@ NOT_WRITABLE = (errno.EROFS, errno.EACCES, errno.EPERM)
 
 def os_error_line(error: OSError, where: str | os.PathLike | None = None, folder_option: str = "") -> str:
     """One line for an ``OSError`` of a command: the file (``where`` when the error names none), the cause and, for a
-    disk without room or a place that cannot be written, what to do (``folder_option``: the option that gives the
-    folder, e.g. ``-f``)."""
+    full disk or a place that cannot be written, what to do (``folder_option``: the option giving the folder)."""
     name = error.filename if error.filename is not None else where
     cause = error.strerror or str(error) or type(error).__name__
     if error.errno in NO_ROOM:

@@ -7,22 +7,14 @@ datasets and the protocol's records write through, imports neither.
 import importlib
 
 #: Where each name of the package lives.
-_MODULES = {
-    "ActionChunkReplayBuffer": "buffers",
-    "MixedReplayBuffer": "buffers",
-    "ReturnToGoReplayBuffer": "buffers",
-    "ReturnToGoSamples": "buffers",
-    "returns_to_go": "buffers",
-    "with_n_step_returns": "buffers",
-    "HeldActionNoise": "noise",
-    "pink_action_noise": "noise",
-    "OfflineSAC": "offline",
-    "behaviour_cloning_loss": "offline",
-    "OnlineFineTuning": "finetune",
-    "KeywordError": "settings",
-    "SettingError": "settings",
-    "TrainingDivergedError": "settings",
-}
+_MODULES = {name: module for module, names in {
+    "buffers": ("ActionChunkReplayBuffer", "MixedReplayBuffer", "ReturnToGoReplayBuffer", "ReturnToGoSamples", "returns_to_go",
+                "with_n_step_returns"),
+    "noise": ("HeldActionNoise", "pink_action_noise"),
+    "offline": ("OfflineSAC", "behaviour_cloning_loss"),
+    "finetune": ("OnlineFineTuning",),
+    "settings": ("KeywordError", "SettingError", "TrainingDivergedError"),
+}.items() for name in names}  # fmt: skip
 
 
 def __getattr__(name: str):
@@ -31,19 +23,4 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'sb3_cql.common' has no attribute {name!r}")
 
 
-__all__ = [
-    "ActionChunkReplayBuffer",
-    "HeldActionNoise",
-    "KeywordError",
-    "MixedReplayBuffer",
-    "OfflineSAC",
-    "OnlineFineTuning",
-    "ReturnToGoReplayBuffer",
-    "ReturnToGoSamples",
-    "SettingError",
-    "TrainingDivergedError",
-    "behaviour_cloning_loss",
-    "pink_action_noise",
-    "returns_to_go",
-    "with_n_step_returns",
-]
+__all__ = sorted(_MODULES)

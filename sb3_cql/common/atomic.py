@@ -1,7 +1,5 @@
-"""Model and replay-buffer saves that are whole or absent: SB3 writes a save in place, so that a kill during it would
-leave a truncated ``.zip`` no load opens; here it goes through the package's one atomic write,
-:func:`sb3_cql.files.replace_atomically` (whose names this module re-exports).
-"""
+"""Model and replay-buffer saves that are whole or absent (SB3 writes in place: a kill would leave a truncated
+``.zip``), through :func:`sb3_cql.files.replace_atomically`, whose names this module re-exports."""
 
 from __future__ import annotations
 
@@ -33,15 +31,9 @@ def sb3_save_path(path: str | os.PathLike, suffix: str) -> Path:
 
 
 def save_atomically(save: Callable[[Any], None], path: Any, suffix: str) -> None:
-    """Run the SB3 save ``save(target)`` so that the file at ``path`` is afterwards either the one it was or the new
-    one, whole, whatever stops the save (an error, Ctrl-C, ``kill -9``, a power cut): the save writes a temporary file
-    in the same folder, which is flushed to disk and renamed over the target (:func:`replace_atomically`).
-
-    :param save: writes to the path (or file object) it is given, as SB3's ``save`` and ``save_replay_buffer`` do.
-    :param path: a path, with SB3's rules (:func:`sb3_save_path`; missing folders are made); a file object is
-        given to ``save`` as it is.
-    :param suffix: SB3's suffix for a path without one: ``"zip"`` (models), ``"pkl"`` (replay buffers).
-    """
+    """Run the SB3 save ``save(target)`` so that the file at ``path`` (SB3's rules, :func:`sb3_save_path`, with
+    ``suffix`` ``"zip"`` or ``"pkl"``) is afterwards either the one it was or the new one, whole, whatever stops the
+    save (:func:`replace_atomically`). A file object is given to ``save`` as it is."""
     if not isinstance(path, (str, os.PathLike)):
         save(path)
         return
@@ -87,9 +79,8 @@ def saved_model_problem(path: str | os.PathLike) -> str | None:
 
 
 def check_saved_model(path: Any) -> None:
-    """A ``ValueError`` naming the file and what it lacks where the SB3 model file at ``path`` (or ``path`` + ``.zip``,
-    as SB3 reads it), a zip archive, does not open (:func:`saved_model_problem`); nothing for a file object, a path
-    without a file or a file that is no zip archive (SB3's ``load`` says so itself)."""
+    """A ``ValueError`` naming the file and what it lacks where the SB3 model zip at ``path`` (or ``path`` + ``.zip``)
+    does not open (:func:`saved_model_problem`); nothing for anything else (SB3's ``load`` reports on it itself)."""
     if not isinstance(path, (str, os.PathLike)):
         return
     found = next((file for file in (Path(path), Path(f"{path}.zip")) if file.is_file()), None)

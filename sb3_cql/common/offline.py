@@ -70,18 +70,14 @@ class OfflineSAC(OnlineFineTuning):
     (``save_replay_buffer``, checkpoints) holds the online transitions, and the offline data come back from the
     dataset id.
 
-    Observations are z-scored with the dataset's statistics (``normalize_observations``) inside the policy, so
-    ``predict`` applies the same normalisation after ``save``/``load``. :meth:`load` does not reload the data: a
-    loaded model predicts with a one-transition buffer, and refills it from its dataset id when it trains again.
+    :meth:`load` does not reload the data: a loaded model predicts with a one-transition buffer, and refills it from
+    its dataset id when it trains again.
 
-    A setting training cannot use (``gamma`` or ``tau`` outside [0, 1], a learning rate that is not a finite number
-    >= 0, a negative ``ent_coef``, a NaN ``target_entropy``, a layer of 0 units, a negative step count, a ``batch_size``
-    below 1, ...; also one given to :meth:`load`) is a :class:`SettingError` naming the keyword and its value, raised
-    when the model is set up, and so is a replay buffer given as ``dataset`` that holds a NaN or an infinity, or an
-    action outside [-1, 1] (SB3's buffers hold actions scaled by ``policy.scale_action``); a keyword it does not take
-    is a :class:`KeywordError` naming the closest one. :meth:`save` and :meth:`save_replay_buffer` leave a file whole
-    or none. Ctrl-C during :meth:`learn` offline acts between gradient steps: the model is the one
-    after its last whole step.
+    A setting training cannot use (also one given to :meth:`load`), or a replay buffer given as ``dataset`` that
+    holds a NaN, an infinity or an action outside [-1, 1] (SB3's buffers hold scaled actions), is a
+    :class:`SettingError` naming the keyword and its value, raised when the model is set up; a keyword it does not
+    take is a :class:`KeywordError` naming the closest one. :meth:`save` and :meth:`save_replay_buffer` leave a file
+    whole or none. Ctrl-C during :meth:`learn` offline acts between gradient steps.
 
     :param policy: the policy model (``"MlpPolicy"``, ``"MultiInputPolicy"``: SAC's).
     :param env: the environment (for its spaces, and the default evaluation env).
@@ -222,8 +218,7 @@ class OfflineSAC(OnlineFineTuning):
 
     def _check_settings(self) -> None:
         """:class:`SettingError` for a setting outside what training can use, where SB3 would train on without a word
-        or fail later with another message: run when the model is set up, so that it checks the keywords given to
-        ``load`` (a fine-tuning's) too. Subclasses add theirs."""
+        or fail later: run when the model is set up, so that ``load``'s keywords are checked too. Subclasses add theirs."""
         check_fraction("gamma", self.gamma)
         check_fraction("tau", self.tau, zero=True)  # 0: a target network that stays as it was made (SAC's too)
         check_rate("learning_rate", self.learning_rate)
@@ -251,7 +246,8 @@ class OfflineSAC(OnlineFineTuning):
         if fraction is not None and not (isinstance(fraction, (int, float)) and 0.0 <= fraction <= 1.0):
             raise SettingError(f"online_fraction must be None (offline training) or in [0, 1], got {fraction!r}")
 
-    def _setup_offline_model(self) -> None:
+    def _setup_model(self) -> None:
+        self.algorithm = type(self).__name__  # saved with the model: load() reads it before the parameters
         self._check_settings()
         if isinstance(self.observation_space, spaces.Dict) and self.n_steps > 1:
             raise SettingError("n_steps > 1 is not supported with Dict observations (SB3's NStepReplayBuffer holds Box ones)")
@@ -290,9 +286,8 @@ class OfflineSAC(OnlineFineTuning):
             self.dataset = self.dataset if isinstance(self.dataset, str) else None  # never pickle data into a model
 
     def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
-        """The replay buffer from ``dataset`` (:func:`sb3_cql.data.load_replay_buffer`: a buffer of the user's checked,
-        then viewed with SB3's n-step returns for ``n_steps`` > 1; a Minari dataset or id loaded into a buffer of
-        ``replay_buffer_class``, SB3's choice); then the observation statistics of ``normalize_observations``."""
+        """The replay buffer from ``dataset`` (:func:`sb3_cql.data.load_replay_buffer`; a buffer of the user's read as
+        trained, :meth:`_read_as_trained`), then the observation statistics of ``normalize_observations``."""
         from sb3_cql.data.loading import load_replay_buffer  # (Minari loads with the data, not with the algorithms)
 
         buffer = load_replay_buffer(dataset, self.observation_space, self.action_space, self._data_observation_space(),
@@ -331,15 +326,8 @@ class OfflineSAC(OnlineFineTuning):
     ) -> SelfOfflineSAC:
         """Make ``total_timesteps`` gradient steps on the replay buffer, calling the callbacks after each one; with
         ``online_fraction`` set, fine-tune online for ``total_timesteps`` env steps instead (SAC's ``learn``).
-
-        :param total_timesteps: gradient steps (offline) or env steps (online).
-        :param callback: SB3 callback(s), called once per gradient step (offline) or env step (online).
-        :param log_interval: gradient steps between two dumps of the logs (offline, default 1000), or episodes
-            (online, default SAC's 4).
-        :param tb_log_name: name of the TensorBoard run; by default the algorithm's class name (``CQL``, ``BC``).
-        :param reset_num_timesteps: count from 0 (else continue the count of a previous ``learn``).
-        :param progress_bar: show a progress bar of the steps.
-        """
+        ``log_interval``: gradient steps between two dumps of the logs (offline, default 1000), or episodes (online,
+        SAC's 4); ``tb_log_name`` by default the class's name."""
         # CPU torch slows down by 40x on denormal floats, which near-converged networks produce.
         th.set_flush_denormal(True)
         # Each step allocates and frees ~11 MB activations: keep that memory instead of page-faulting it back in.
@@ -367,11 +355,9 @@ class OfflineSAC(OnlineFineTuning):
         return self
 
     def load_offline_data(self) -> ReplayBuffer:
-        """The model's offline data, in its replay buffer, as :meth:`learn` has them before training: a loaded model
-        (whose buffer :meth:`load` leaves at one transition) refills it from its dataset id, collecting a missing
-        standard dataset first; a buffer of one batch or more is kept as it is.
+        """The model's replay buffer as :meth:`learn` has it before training: a loaded model's refilled from its
+        dataset id; one of a batch or more kept as it is.
 
-        :return: the replay buffer (``model.replay_buffer``).
         :raises SettingError: the buffer holds fewer than ``batch_size`` transitions and no dataset id says where
             to reload them from.
         """
@@ -416,14 +402,8 @@ class OfflineSAC(OnlineFineTuning):
         exclude: Iterable[str] | None = None,
         include: Iterable[str] | None = None,
     ) -> None:
-        """SB3's, whole or not at all (:func:`~sb3_cql.common.atomic.save_atomically`): a save cut short (an error,
-        Ctrl-C, ``kill -9``) leaves the file that was at ``path`` before, or none. ``path`` without a suffix gets
-        ``.zip``, as SB3's; a file object is written as SB3 writes it.
-
-        :param path: where to save the model.
-        :param exclude: attributes not to save, besides SB3's own exclusions.
-        :param include: attributes to save although excluded.
-        """
+        """SB3's, whole or not at all (:func:`~sb3_cql.common.atomic.save_atomically`): a save cut short leaves the
+        file that was at ``path`` before, or none."""
         save_atomically(lambda target: super(OfflineSAC, self).save(target, exclude, include), path, "zip")
 
     def save_replay_buffer(self, path: str | os.PathLike | io.BufferedIOBase) -> None:
@@ -447,18 +427,13 @@ class OfflineSAC(OnlineFineTuning):
         kwargs["_fill_on_setup"] = False
         return super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
 
-    def _setup_model(self) -> None:
-        self.algorithm = type(self).__name__  # saved with the model: load() reads it before the parameters
-        self._setup_offline_model()
-
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "actor_lr_schedule", "_fill_on_setup"]
 
 
 def saved_algorithm(path: Any) -> str | None:
     """The class that saved the model at ``path`` (a zip of SB3's, or a file object of one), as its ``algorithm``
-    says, or for a model saved before that was recorded, as its settings tell; ``None`` where nothing tells (a path
-    SB3's ``load`` will report on itself)."""
+    (or an older model's settings) tells; ``None`` where nothing tells."""
     try:
         if isinstance(path, (str, os.PathLike)):
             suffixed = path if os.path.exists(path) else f"{path}.zip"

@@ -35,21 +35,17 @@ class OfflinePolicy(SACPolicy):
     score the state with the whole chunk (both built on :func:`chunk_space`), while the policy's ``action_space``
     stays the env's.
 
-    :meth:`predict` then runs each chunk open loop, one env step at a time, through SB3's ``state``: pass back the
-    state it returns, as ``evaluate_policy``, ``EvalCallback`` and the zoo's ``enjoy``/``record_video`` do for
-    recurrent policies, and each chunk's actions come one by one (a new chunk when one is used up, or at
-    ``episode_start``). Without a state, each call starts a new chunk and returns its first action.
+    :meth:`predict` then runs each chunk open loop through SB3's ``state`` (passed back by ``evaluate_policy``,
+    ``EvalCallback`` and the zoo's ``enjoy``, as for recurrent policies): a new chunk when one is used up, or at
+    ``episode_start``. Without a state, each call starts a new chunk and returns its first action.
 
     With ``critic_layer_norm``, every hidden layer of the Q-networks is followed by a LayerNorm before its activation,
     as RLPD's critics (Ball et al. 2023), which keeps the values of states far from the data from diverging.
 
     With ``best_of_n`` > 1 the policy acts by ranking (SHARSA's best-of-N, Park et al. 2025): at each decision it draws
-    ``best_of_n`` candidate actions (or chunks) from the actor's distribution (:meth:`candidate_actions`) and takes the
-    one the critics value most (the minimum of the twins), :meth:`best_of_n_actions`. With ``deterministic=True`` the
-    candidates' noise is drawn from a generator seeded by the observation's bytes, so the same observation gives the
-    same action whatever came before (evaluations replay exactly); with ``deterministic=False`` from torch's global
-    generator. ``best_of_n_scale`` narrows (or widens) the candidates' spread around the actor's mean: their standard
-    deviation is the actor's times ``best_of_n_scale``.
+    ``best_of_n`` candidates from the actor's distribution and takes the one the critics value most
+    (:meth:`best_of_n_actions`). With ``deterministic=True`` the candidates' noise is seeded by the observation's bytes,
+    so the same observation gives the same action whatever came before (evaluations replay exactly).
 
     The policy acts with :attr:`acting_actor`, the trained actor unless a subclass keeps another (IQL's average of
     the actor's weights).
@@ -64,14 +60,9 @@ class OfflinePolicy(SACPolicy):
     """
 
     def __init__(
-        self,
-        *args: Any,
-        action_chunk: int = 1,
-        critic_layer_norm: bool = False,
-        best_of_n: int = 1,
-        best_of_n_scale: float = 1.0,
-        **kwargs: Any,
-    ) -> None:
+        self, *args: Any, action_chunk: int = 1, critic_layer_norm: bool = False, best_of_n: int = 1,
+        best_of_n_scale: float = 1.0, **kwargs: Any,
+    ) -> None:  # fmt: skip
         if action_chunk < 1:
             raise ValueError(f"action_chunk must be >= 1, got {action_chunk}")
         if best_of_n < 1:
@@ -108,19 +99,12 @@ class OfflinePolicy(SACPolicy):
         super()._build(lr_schedule)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        data = super()._get_constructor_parameters()
-        return {
-            **data,
-            "action_chunk": self.action_chunk,
-            "critic_layer_norm": self.critic_layer_norm,
-            "best_of_n": self.best_of_n,
-            "best_of_n_scale": self.best_of_n_scale,
-        }
+        names = ("action_chunk", "critic_layer_norm", "best_of_n", "best_of_n_scale")
+        return {**super()._get_constructor_parameters(), **{name: getattr(self, name) for name in names}}
 
     @property
     def acting_actor(self) -> sac_policies.Actor:
-        """The actor the policy acts with: :attr:`actor` (a policy that acts with another, such as an average of
-        the actor's weights, overrides it)."""
+        """The actor the policy acts with: :attr:`actor` unless a subclass overrides it."""
         return self.actor
 
     def _predict(self, observation: th.Tensor, deterministic: bool = False) -> th.Tensor:
@@ -129,20 +113,16 @@ class OfflinePolicy(SACPolicy):
         return self.best_of_n_actions(observation, self.best_of_n, deterministic)
 
     def best_of_n_actions(self, observation: th.Tensor | dict[str, th.Tensor], n: int, deterministic: bool) -> th.Tensor:
-        """For each observation of the batch, the best of ``n`` :meth:`candidate_actions` by the critics' value (the
-        minimum of the twins): ``(batch, action_dim)`` in [-1, 1] (a whole chunk with action chunks). The candidates'
-        standard deviation is the actor's times :attr:`best_of_n_scale`.
-
-        :param observation: a batch of observations (tensors, as ``_predict`` receives them).
-        :param n: candidates per observation.
-        :param deterministic: draw the candidates' noise from generators seeded by each observation's bytes (the same
-            observation, the same action), else from torch's global generator.
-        """
+        """For each observation of the batch (tensors, as ``_predict`` receives them), the best of ``n``
+        :meth:`candidate_actions` by the critics' value (the minimum of the twins): ``(batch, action_dim)`` in [-1, 1]
+        (a whole chunk with action chunks). ``deterministic``: the noise from generators seeded by each observation's
+        bytes, else from torch's global generator."""
         mean_actions, log_std, _ = self.acting_actor.get_action_dist_params(observation)
         log_std = log_std + math.log(self.best_of_n_scale)
         batch_size, action_dim = mean_actions.shape
         if deterministic:
-            noise = th.stack([th.randn(n, action_dim, generator=_generator(seed)) for seed in _observation_seeds(observation)])
+            seeds = _observation_seeds(observation)
+            noise = th.stack([th.randn(n, action_dim, generator=th.Generator().manual_seed(seed)) for seed in seeds])
             noise = noise.to(mean_actions.device).reshape(batch_size * n, action_dim)
         else:
             noise = th.randn(batch_size * n, action_dim, device=mean_actions.device)
@@ -203,12 +183,6 @@ def _observation_seeds(observation: th.Tensor | dict[str, th.Tensor]) -> list[in
     return seeds
 
 
-def _generator(seed: int) -> th.Generator:
-    generator = th.Generator()
-    generator.manual_seed(seed)
-    return generator
-
-
 def map_observations(function: Any, observation: th.Tensor | dict[str, th.Tensor]) -> th.Tensor | dict[str, th.Tensor]:
     if isinstance(observation, dict):
         return {key: function(tensor) for key, tensor in observation.items()}
@@ -237,13 +211,8 @@ FROM_SAC = {SACPolicy: OfflinePolicy, sac_policies.CnnPolicy: CnnPolicy, sac_pol
 
 
 class NormalizedFlatten(BaseFeaturesExtractor):
-    """Flatten a Box observation and z-score it with fixed statistics (the dataset's, set by CQL).
-
-    The statistics are buffers of the module, so they are saved and loaded with the policy's ``state_dict`` and
-    applied in ``predict`` as in training. Until they are set they are the identity (mean 0, std 1).
-
-    :param observation_space: a Box observation space.
-    """
+    """Flatten a Box observation and z-score it with fixed statistics (the dataset's, set by CQL): buffers of the
+    module, saved and loaded with the policy's ``state_dict``; the identity (mean 0, std 1) until they are set."""
 
     def __init__(self, observation_space: spaces.Box) -> None:
         size = int(np.prod(observation_space.shape))

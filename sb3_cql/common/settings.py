@@ -63,8 +63,8 @@ def check_count(name: str, value: Any, minimum: int) -> None:
         raise SettingError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
-#: The most candidates best-of-N draws at each decision: each is an action (or chunk) valued by the critics, for every
-#: observation of a batch, so that 10**9 of them would ask for tens of GB at the first ``predict``.
+#: The most candidates best-of-N draws at each decision, each valued by the critics for every observation of a batch
+#: (10**9 of them would ask for tens of GB at the first ``predict``).
 MAX_BEST_OF_N = 4096
 
 
@@ -100,9 +100,8 @@ def check_finite(names_values: Iterable[tuple[str, Any]]) -> None:
 
 
 def check_rate(name: str, value: Any) -> None:
-    """:class:`SettingError` unless the learning rate ``name`` is a finite number >= 0, or a schedule (a callable of the
-    progress remaining, as SB3's) whose first value is. 0 is SB3's frozen network, which the zoo's ``enjoy`` and
-    ``record_video`` load models with."""
+    """:class:`SettingError` unless the learning rate ``name`` is a finite number >= 0, or a schedule (SB3's callable of
+    the progress remaining) whose first value is (0: the zoo's ``enjoy`` loads models frozen)."""
     if callable(value) and not isinstance(value, numbers.Real):
         try:
             first = value(1.0)
