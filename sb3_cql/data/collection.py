@@ -178,14 +178,9 @@ def collect_dataset(
 
 
 def _collect(
-    spec: CollectionSpec,
-    files: DatasetFiles,
-    workers: int,
-    overwrite: bool,
-    progress_bar: bool,
-    write_every: int,
+    spec: CollectionSpec, files: DatasetFiles, workers: int, overwrite: bool, progress_bar: bool, write_every: int,
     ray_address: str | None,
-) -> MinariDataset:
+) -> MinariDataset:  # fmt: skip
     """:func:`collect_dataset` holding the dataset's lock."""
     dataset_id = files.dataset_id
     env, pending, published, held = None, [], False, 0
