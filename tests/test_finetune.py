@@ -6,6 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from rollouts import random_rollouts
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.logger import configure
 
@@ -19,17 +20,7 @@ RECIPE = {"gamma": 0.999, "expectile": 0.5, "temperature": 50.0, "actor_loss_typ
 
 
 def pendulum_buffer(n_transitions: int = 400) -> ReplayBuffer:
-    env = gym.make("Pendulum-v1")
-    env.action_space.seed(0)
-    buffer = ReplayBuffer(n_transitions, env.observation_space, env.action_space)
-    observation, _ = env.reset(seed=0)
-    for _ in range(n_transitions):
-        action = env.action_space.sample()
-        next_observation, reward, terminated, truncated, _ = env.step(action)
-        buffer.add(observation, next_observation, action / 2.0, np.array([reward]), np.array([terminated]),
-                   [{"TimeLimit.truncated": truncated}])  # fmt: skip
-        observation = next_observation if not (terminated or truncated) else env.reset()[0]
-    return buffer
+    return random_rollouts(gym.make("Pendulum-v1"), n_transitions)
 
 
 def test_iql_fine_tunes_with_its_own_losses_on_mixed_batches_and_continues_from_a_saved_buffer(tmp_path):
