@@ -29,6 +29,7 @@ ZOO_INTERNALS: tuple[ZooInternal, ...] = (
     ZooInternal("method", "ExperimentManager.create_log_folder", (), "the run's folder claimed with os.mkdir"),
     ZooInternal("method", "ExperimentManager.setup_experiment", (), "a damaged -i model or an error of the input: one line"),
     ZooInternal("method", "ExperimentManager.learn", ("model",), "a fine-tuning's checkpoints keep its transitions"),
+    ZooInternal("method", "ExperimentManager.save_trained_model", ("model",), "a full disk: one line, no empty run"),
     ZooInternal("attribute", "rl_zoo3.utils.ALGOS", ("cql", "calql", "bc", "iql"), "--algo's choices, the classes used"),
     ZooInternal("attribute", "rl_zoo3.hyperparams_opt.HYPERPARAMS_SAMPLER", ("cql", "calql", "iql"), "our samplers"),
     ZooInternal("attribute", "rl_zoo3.hyperparams_opt.HYPERPARAMS_CONVERTER", ("cql", "calql", "iql"), "a trial read"),
