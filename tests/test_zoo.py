@@ -303,9 +303,10 @@ def test_sac_baseline_starts_from_the_dataset(zoo):
 
 def test_tuning_with_sqlite_storage(zoo):
     storage = f"sqlite:///{zoo.root / 'study.db'}"
+    # A seeded sampler: the same two trials (their networks, batches and sampled actions) at every run.
     zoo.run("--algo", "cql", "--env", "Panda-v0", "-n", "40", "--eval-episodes", "1", "-optimize", "--n-trials", "2",
             "--n-evaluations", "1", "--storage", storage, "--study-name", "cql", "-f", "tuning", "--no-optim-plots",
-            "--hyperparams", "policy_kwargs:dict(net_arch=[8])")  # fmt: skip
+            "--seed", "0", "--hyperparams", "policy_kwargs:dict(net_arch=[8])")  # fmt: skip
     trials = optuna.load_study(study_name="cql", storage=storage).get_trials(states=[optuna.trial.TrialState.COMPLETE])
     assert len(trials) == 2
     for trial in trials:
