@@ -2,7 +2,7 @@
 
     python benchmarks/offline_suite.py OUT [--d3rlpy-python V/bin/python] [--datasets NAME ...] [--seeds 0 1]
         [--algorithms cql iql bc] [--libraries sb3-cql d3rlpy] [--steps 10000] [--eval-episodes 20]
-        [--variant LABEL=JSON] [--lane I/N] [--threads 1] [--table]
+        [--variant LABEL=JSON] [--source buffer|minari] [--lane I/N] [--threads 1] [--table]
 
 The data sets, made here by seeded scripts in seconds (the online learner's in a few minutes) and kept in
 ``OUT/data/NAME.npz``, are the same arrays for both libraries, and each run is scored against its own data:
@@ -41,6 +41,10 @@ gymnasium 1.0.0: ``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy==2
 TorchScript (with its scalers) and acts here, so both libraries meet the same env and the same evaluation: the last
 policy's deterministic action in ``--eval-episodes`` episodes on env seeds 10000 onwards (the data's are 0 onwards).
 
+``--source minari`` gives both libraries the same arrays as Minari datasets (``OUT/minari``, Minari's datasets
+path; ids ``offline-suite/NAME-v0``): ours get the ``MinariDataset`` as ``dataset=``, d3rlpy's an ``MDPDataset`` of
+its episodes, so a user with a Minari dataset meets the same defaults; the rows are labelled ``minari``.
+
 Each run is one file, ``OUT/runs/DATASET-LIBRARY-ALGORITHM[-LABEL]-seedS.json``, written whole or not at all: the same
 command skips the runs already there, so a killed suite resumes by run. ``--lane I/N`` takes every N-th run from
 the I-th (0-based), one lane a core. ``--table`` prints the table of the runs in ``OUT`` (mean and range over seeds).
@@ -51,6 +55,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -76,7 +81,16 @@ import numpy as np, torch, d3rlpy
 data_path, algo_name, seed, steps, threads, policy_path = sys.argv[1:7]
 torch.set_num_threads(int(threads))
 d3rlpy.seed(int(seed))
-data = np.load(data_path)
+if data_path.startswith("minari:"):  # the same arrays, read back from the Minari dataset's episodes
+    import minari
+    source = minari.load_dataset(data_path[len("minari:"):])
+    episodes = list(source.iterate_episodes())
+    data = {key: np.concatenate([getattr(e, key) for e in episodes])
+            for key in ("actions", "rewards", "terminations", "truncations")}
+    data["observations"] = np.concatenate([e.observations[:-1] for e in episodes]).astype(np.float32)
+    data["action_low"], data["action_high"] = source.action_space.low, source.action_space.high
+else:
+    data = dict(np.load(data_path))
 dataset = d3rlpy.dataset.MDPDataset(data["observations"], data["actions"], data["rewards"], data["terminations"],
                                     timeouts=data["truncations"])
 scaler = d3rlpy.preprocessing.MinMaxActionScaler(minimum=data["action_low"], maximum=data["action_high"])
@@ -271,12 +285,57 @@ def evaluate(act: Callable[[np.ndarray], np.ndarray], env_id: str, n_episodes: i
     return returns, successes
 
 
-def run_ours(algorithm: str, data: dict, env_id: str, seed: int, keywords: dict, args: argparse.Namespace) -> dict:
+def minari_id(name: str) -> str:
+    return f"offline-suite/{name}-v0"
+
+
+def write_minari(name: str, data: dict[str, np.ndarray], folder: Path) -> None:
+    """The data set as a Minari dataset under ``folder`` (Minari's datasets path): one episode a run of rows ending in
+    a termination or a truncation, its observations the episode's and then the last next observation. Made in a
+    folder beside it and moved in whole."""
+    import minari
+    from minari.data_collector import EpisodeBuffer
+
+    target = folder / minari_id(name)
+    if target.is_dir():
+        return
+    ends = np.flatnonzero(data["terminations"] | data["truncations"]) + 1
+    episodes = []
+    for index, (start, end) in enumerate(zip(np.concatenate([[0], ends[:-1]]), ends, strict=True)):
+        rows = slice(start, end)
+        observations = np.concatenate([data["observations"][rows], data["next_observations"][rows][-1:]])
+        episode = {key: data[key][rows] for key in ("actions", "terminations", "truncations")}
+        episodes.append(EpisodeBuffer(id=index, observations=observations, rewards=data["rewards"][rows].astype(np.float64),
+                                      **episode))  # fmt: skip
+    staging = Path(tempfile.mkdtemp(dir=folder.parent, prefix="minari-staging-"))
+    os.environ["MINARI_DATASETS_PATH"] = str(staging)
+    try:
+        minari.create_dataset_from_buffers(minari_id(name), episodes, env=gym.make(task_of(name).env_id))
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staging / minari_id(name), target)
+    finally:
+        os.environ["MINARI_DATASETS_PATH"] = str(folder)
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def our_dataset(name: str, data: dict[str, np.ndarray], env: gym.Env, minari_folder: Path | None):
+    """What our algorithms' ``dataset=`` gets: an SB3 ``ReplayBuffer``, or with a Minari folder the Minari dataset."""
+    if minari_folder is None:
+        return replay_buffer(data, env)
+    import minari
+
+    os.environ["MINARI_DATASETS_PATH"] = str(minari_folder)
+    return minari.load_dataset(minari_id(name))
+
+
+def run_ours(algorithm: str, name: str, data: dict, seed: int, keywords: dict, args: argparse.Namespace) -> dict:
     from sb3_cql import BC, CQL, IQL
 
+    env_id = task_of(name).env_id
     env = gym.make(env_id)
     model_class = {"cql": CQL, "iql": IQL, "bc": BC}[algorithm]
-    model = model_class("MlpPolicy", env, dataset=replay_buffer(data, env), seed=seed, **keywords)
+    dataset = our_dataset(name, data, env, args.out / "minari" if args.source == "minari" else None)
+    model = model_class("MlpPolicy", env, dataset=dataset, seed=seed, **keywords)
     start = time.perf_counter()
     model.learn(args.steps)
     seconds = time.perf_counter() - start
@@ -284,12 +343,15 @@ def run_ours(algorithm: str, data: dict, env_id: str, seed: int, keywords: dict,
     return {"returns": returns, "successes": successes, "seconds": seconds}
 
 
-def run_d3rlpy(algorithm: str, data_path: Path, env_id: str, seed: int, args: argparse.Namespace) -> dict:
+def run_d3rlpy(algorithm: str, name: str, seed: int, args: argparse.Namespace) -> dict:
+    env_id = task_of(name).env_id
+    data_path = f"minari:{minari_id(name)}" if args.source == "minari" else str(args.out / "data" / f"{name}.npz")
     with tempfile.TemporaryDirectory() as folder:
         policy_path = Path(folder) / "policy.pt"
-        command = [args.d3rlpy_python, "-c", D3RLPY_SCRIPT, str(data_path), algorithm, str(seed), str(args.steps),
+        command = [args.d3rlpy_python, "-c", D3RLPY_SCRIPT, data_path, algorithm, str(seed), str(args.steps),
                    str(args.threads), str(policy_path)]  # fmt: skip
-        finished = subprocess.run(command, capture_output=True, text=True)
+        environment = {**os.environ, "MINARI_DATASETS_PATH": str(args.out / "minari")}
+        finished = subprocess.run(command, capture_output=True, text=True, env=environment)
         if finished.returncode:
             raise RuntimeError(f"d3rlpy's {algorithm} failed:\n{finished.stderr[-2000:]}")
         result = json.loads(finished.stdout.strip().splitlines()[-1])
@@ -346,6 +408,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variant", default=None, metavar="LABEL=JSON", help="our keywords, recorded under LABEL")
     parser.add_argument("--lane", default="0/1", metavar="I/N", help="every N-th run from the I-th (default 0/1)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads of each run (default 1)")
+    parser.add_argument("--source", choices=["buffer", "minari"], default="buffer",
+                        help="the data as an SB3 ReplayBuffer (default) or a Minari dataset, for both libraries")  # fmt: skip
     parser.add_argument("--table", action="store_true", help="print the table of the runs in OUT and stop")
     args = parser.parse_args(argv)
     if args.table:
@@ -367,6 +431,8 @@ def main(argv: list[str] | None = None) -> int:
     libraries = [name for name in args.libraries if name == "sb3-cql" or args.d3rlpy_python]
     if args.variant:
         libraries = ["sb3-cql"]
+    if args.source == "minari":  # a row of its own: the label names the source
+        label = f"{label}+minari" if label else "minari"
     sys.stdout.reconfigure(line_buffering=True)
     th.set_num_threads(args.threads)
     runs = [(dataset, library, algorithm, seed) for seed in args.seeds for dataset in args.datasets
@@ -375,13 +441,16 @@ def main(argv: list[str] | None = None) -> int:
         path = args.out / "runs" / f"{run_name(dataset, library, algorithm, label, seed)}.json"
         if index % int(lanes) != int(lane) or path.exists():
             continue
-        data, env_id = load_data(dataset, args.out / "data"), task_of(dataset).env_id
+        data = load_data(dataset, args.out / "data")
+        if args.source == "minari":
+            write_minari(dataset, data, args.out / "minari")
         if library == "sb3-cql":
-            result = run_ours(algorithm, data, env_id, seed, keywords, args)
+            result = run_ours(algorithm, dataset, data, seed, keywords, args)
         else:
-            result = run_d3rlpy(algorithm, args.out / "data" / f"{dataset}.npz", env_id, seed, args)
+            result = run_d3rlpy(algorithm, dataset, seed, args)
         scored = result["successes"] if task_of(dataset).scored_by == "success" else result["returns"]
         record = {"dataset": dataset, "library": library, "algorithm": algorithm, "label": label, "keywords": keywords,
+                  "source": args.source,
                   "seed": seed, "steps": args.steps, "data": data_score(dataset, data), "score": float(np.mean(scored)),
                   "date": time.strftime("%Y-%m-%d"), **result}  # fmt: skip
         write_json(path, record)
