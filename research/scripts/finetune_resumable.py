@@ -42,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=100_000, help="a multiple of --save-freq")
     parser.add_argument("--save-freq", type=int, default=10_000)
     parser.add_argument("--eval-freq", type=int, default=10_000)
+    parser.add_argument("--research-variants", action="store_true",
+                        help="train with research/zoo_train.py (--algo may name a research variant: iql_capped)")  # fmt: skip
     args = parser.parse_args(argv)
     if args.steps % args.save_freq:
         parser.error("--steps must be a multiple of --save-freq: a segment's steps are counted by its checkpoints")
@@ -56,7 +58,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{args.out}: {done} steps done; final model {args.out / 'final.zip'} ({start})", flush=True)
             return 0
         print(f"{args.out}: {done} steps done, {args.steps - done} left, from {start}", flush=True)
-        command = [sys.executable, "-m", "rl_zoo3.train", "--algo", args.algo, "--env", args.env, "-i", str(start),
+        research_trainer = [str(Path(__file__).resolve().parents[1] / "zoo_train.py")]
+        trainer = research_trainer if args.research_variants else ["-m", "rl_zoo3.train"]
+        command = [sys.executable, *trainer, "--algo", args.algo, "--env", args.env, "-i", str(start),
                    "--conf-file", args.conf_file, "--seed", str(args.seed), "--num-threads", "1", "-f", str(args.out),
                    "-n", str(args.steps - done), "--save-freq", str(args.save_freq),
                    "--eval-freq", str(args.eval_freq)]  # fmt: skip

@@ -26,6 +26,7 @@ from stable_baselines3 import SAC
 
 import envs
 from sb3_cql import BC, CQL, IQL, CalQL
+from sb3_cql.common import SettingError
 from sb3_cql.data import CollectionSpec, collect_dataset, load_dataset
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -572,3 +573,31 @@ def test_mean_backup_scores_the_mean_action(inputs):
         values = model.next_state_values(data.next_observations, (mean_actions, log_std), th.ones(1))
         expected = th.cat(model.critic_target(data.next_observations, th.tanh(mean_actions)), 1).min(1, keepdim=True).values
     th.testing.assert_close(values, expected, atol=1e-4, rtol=0)
+
+
+def test_capped_iql_holds_every_td_target_at_most_its_ceiling_and_loads_an_iql_model(inputs, tmp_path):
+    from research.iql_variants import CappedIQL
+
+    model = tiny_cql(CappedIQL, inputs)
+    with th.no_grad():
+        model.value_net.v_net[-1].bias.fill_(5.0)  # values far above any return of a 0/1 reward
+    data = model.replay_buffer.sample(256)
+    with th.no_grad():
+        capped = model.compute_target(data, model.gamma)
+        plain = IQL.compute_target(model, data, model.gamma)
+    assert plain.max() > 1.0
+    th.testing.assert_close(capped, plain.clamp(max=1.0))
+    iql = tiny_cql(IQL, inputs)
+    iql.save(tmp_path / "iql.zip")
+    loaded = CappedIQL.load(tmp_path / "iql.zip", target_ceiling=0.5)
+    assert isinstance(loaded, CappedIQL) and loaded.target_ceiling == 0.5
+
+
+@pytest.mark.parametrize("ceiling", [float("nan"), "1", -1.0])
+def test_capped_iql_refuses_a_ceiling_that_is_not_a_finite_number_above_the_floor(inputs, ceiling):
+    from research.iql_variants import CappedIQL
+
+    with pytest.raises(SettingError, match="target_ceiling"), pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+        CappedIQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, batch_size=16,
+                  policy_kwargs={"net_arch": [32]}, target_floor=0.0, target_ceiling=ceiling)  # fmt: skip
