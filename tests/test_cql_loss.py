@@ -108,8 +108,9 @@ def corl_critic_loss(model: CQL, seed: int) -> float:
     return float(loss)
 
 
-@pytest.mark.parametrize("options", [{"cql_alpha": 10.0}, {"cql_alpha": 3.0, "cql_target_action_gap": 2.0},
-                                     {"cql_alpha": 5.0, "cql_temperature": 2.0}])  # fmt: skip
+@pytest.mark.parametrize("options", [{"cql_alpha": 10.0, "cql_target_action_gap": None}, {},
+                                     {"cql_alpha": 3.0, "cql_target_action_gap": 2.0},
+                                     {"cql_alpha": 5.0, "cql_temperature": 2.0, "cql_target_action_gap": None}])  # fmt: skip
 def test_the_critic_loss_of_one_batch_is_corls(options):
     """Each critic's full MSE plus ``cql_alpha`` times its gap (with the Lagrange multiplier, ``alpha' * cql_alpha *
     (gap - target)``), summed over the critics: CORL's critic loss, to float32 rounding."""
@@ -147,7 +148,8 @@ def test_the_conservative_loss_takes_the_multiplier_and_its_own_step_moves_it():
     assert model.log_alpha_prime.item() < before
     loss.backward()
     assert [gap.grad.item() for gap in gaps] == pytest.approx([1.5, 1.5])  # alpha' * cql_alpha, alpha' detached
-    plain = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(200), cql_alpha=3.0, policy_kwargs=TINY)
+    plain = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(200), cql_alpha=3.0,
+                cql_target_action_gap=None, policy_kwargs=TINY)  # fmt: skip
     assert plain.alpha_prime_optimizer is None and plain.conservative_loss(gaps).item() == pytest.approx(27.0)
 
 

@@ -18,6 +18,7 @@ import yaml
 from rollouts import TINY_PANDA_COLLECT
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from sb3_cql import CQL
 from sb3_cql.common.atomic import saved_model_problem
 
 # Tiny networks and batches: the point is the plumbing, not the learning.
@@ -111,6 +112,9 @@ def test_zoo_training_logs_evaluations_tensorboard_and_checkpoints(trained):
     config = yaml.unsafe_load((trained / "Panda-v0" / "config.yml").read_text())
     # hyperparams/cql.yml, found without --conf-file
     assert dict(config)["dataset"] == "sb3cql/Panda-v0/noisy-regrasp-delta-1k-v0"
+    # the config's fixed conservative weight reaches the model, not the constructor's learned one
+    model = CQL.load(trained / "Panda-v0.zip")
+    assert (model.cql_alpha, model.cql_target_action_gap, model.alpha_prime_optimizer) == (10.0, None, None)
 
     (events,) = (trained.parents[2] / "tb" / "Panda-v0").glob("CQL_1/events.out.tfevents.*")
     tags = EventAccumulator(str(events)).Reload().Tags()["scalars"]

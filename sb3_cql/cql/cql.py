@@ -10,6 +10,7 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, Schedule
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
@@ -77,10 +78,10 @@ class CQL(OfflineSAC):
         env: GymEnv | str,
         dataset: MinariDataset | str | ReplayBuffer | None = None,
         actor_learning_rate: float | Schedule | None = 3e-5,
-        cql_alpha: float = 10.0,
+        cql_alpha: float = 5.0,
         cql_n_actions: int = 10,
         cql_temperature: float = 1.0,
-        cql_target_action_gap: float | None = None,
+        cql_target_action_gap: float | None = 10.0,
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
         bc_steps: int = 0,
@@ -98,6 +99,7 @@ class CQL(OfflineSAC):
         self.bc_learning_rate = bc_learning_rate
         self.actor_bc_weight = actor_bc_weight
         self.log_alpha_prime: th.Tensor | None = None
+        #: Adam on ``log_alpha_prime`` where ``cql_target_action_gap`` is set; ``None`` for a fixed ``cql_alpha``.
         self.alpha_prime_optimizer: th.optim.Adam | None = None
         super().__init__(policy, env, dataset, actor_learning_rate=actor_learning_rate, **kwargs)
 
@@ -115,8 +117,10 @@ class CQL(OfflineSAC):
 
     def _setup_model(self) -> None:
         super()._setup_model()
+        # alpha' = 1 at the start; the tensor exists with a fixed weight too, so that a model saved with a multiplier
+        # loads with ``cql_target_action_gap=None`` (SB3's load sets the saved tensor's data in place).
+        self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
         if self.cql_target_action_gap is not None:
-            self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
@@ -315,7 +319,7 @@ class CQL(OfflineSAC):
     def conservative_loss(self, gaps: list[th.Tensor]) -> th.Tensor:
         """``cql_alpha`` times each critic's gap, summed; with ``cql_target_action_gap``, ``alpha' * cql_alpha * (gap -
         cql_target_action_gap)`` per critic, ``alpha'`` detached and as before this step's :meth:`update_alpha_prime`."""
-        if self.log_alpha_prime is None:
+        if self.alpha_prime_optimizer is None:
             return sum(self.cql_alpha * gap for gap in gaps)
         alpha_prime = self.alpha_prime().detach()
         return sum(alpha_prime * self.cql_alpha * (gap - self.cql_target_action_gap) for gap in gaps)
@@ -405,6 +409,22 @@ class CQL(OfflineSAC):
         log-densities: the actor's on ``n`` copies of each state, with only the sampling repeated."""
         mean_actions, log_std = mean_actions.repeat_interleave(n, dim=0), log_std.repeat_interleave(n, dim=0)
         return self.actor.action_dist.log_prob_from_params(mean_actions, log_std)
+
+    def set_parameters(
+        self, load_path_or_dict: str | dict[str, dict], exact_match: bool = True, device: th.device | str = "auto"
+    ) -> None:
+        """SB3's, across a change of the conservative weight's form given to ``load``: a saved multiplier's optimizer
+        is left out where ``cql_target_action_gap=None`` fixes the weight, and where a target is given to a model
+        saved with a fixed weight the multiplier starts at ``alpha'`` = 1."""
+        params = load_path_or_dict
+        if not isinstance(params, dict):
+            _, params, _ = load_from_zip_file(params, device=device)
+        params = dict(params)
+        if self.alpha_prime_optimizer is None:
+            params.pop("alpha_prime_optimizer", None)
+        else:
+            params.setdefault("alpha_prime_optimizer", self.alpha_prime_optimizer.state_dict())
+        super().set_parameters(params, exact_match, device)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
