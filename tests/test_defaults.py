@@ -102,3 +102,38 @@ def test_iql_reads_raw_observations_and_cql_and_bc_z_score_them_by_default(mixtu
     for model in models.values():
         actions, _ = model.predict(buffer.observations[:10, 0], deterministic=True)
         assert actions.shape == (10, 1) and np.all(np.isfinite(actions)) and np.all(np.abs(actions) <= 1.0)
+
+
+def sparse_buffer(share: float, n: int = 2000) -> tuple[gym.Env, ReplayBuffer]:
+    """Random 2-D states, a reward of 1 on ``share`` of the transitions (each ending its episode) and a small
+    action cost on the rest: a sparse reward whose floor is not constant."""
+    env = gym.make("MountainCarContinuous-v0")
+    rng = np.random.default_rng(0)
+    buffer = ReplayBuffer(n, env.observation_space, env.action_space)
+    for index in range(n):
+        observation = rng.uniform(-1.0, 0.5, 2).astype(np.float32)
+        action = rng.uniform(-1.0, 1.0, 1).astype(np.float32)
+        success = index < share * n
+        reward = 1.0 if success else -0.001 * float(action[0] ** 2)
+        buffer.add(observation, observation, action, np.array([reward]), np.array([success]), [{}])
+    return env, buffer
+
+
+@pytest.mark.parametrize(
+    "options, share, warned",
+    [({"cql_alpha": 10.0, "cql_target_action_gap": None}, 0.01, True),  # the setting that failed the sparse mixture
+     ({}, 0.01, False),  # the learned weight
+     ({"cql_alpha": 10.0, "cql_target_action_gap": None, "actor_bc_weight": 8.0}, 0.01, False),  # anchored: the Panda config's
+     ({"cql_alpha": 1.0, "cql_target_action_gap": None}, 0.01, False),  # a fixed weight that solved it
+     ({"cql_alpha": 10.0, "cql_target_action_gap": None}, 0.3, False)],  # a dense reward
+)  # fmt: skip
+def test_a_fixed_weight_that_failed_a_sparse_reward_is_warned_of_on_one_line(options, share, warned, recwarn):
+    env, buffer = sparse_buffer(share)
+    CQL("MlpPolicy", env, dataset=buffer, policy_kwargs=TINY, **options)
+    messages = [str(warning.message) for warning in recwarn if "sparse reward" in str(warning.message)]
+    if warned:
+        assert len(messages) == 1 and "\n" not in messages[0]
+        assert "cql_alpha=10" in messages[0] and "1.00% of the transitions" in messages[0]
+        assert "cql_target_action_gap" in messages[0] and "actor_bc_weight" in messages[0]
+    else:
+        assert messages == []

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -35,8 +36,10 @@ class CQL(OfflineSAC):
     and policy actions at ``s'`` (all scored at ``s``, importance-weighted by their densities), ``T`` the
     ``cql_temperature``. With ``cql_target_action_gap`` the term is ``alpha' * cql_alpha * (gap -
     cql_target_action_gap)``, ``alpha'`` learned by dual gradient ascent (tinkoff-ai/CORL's form). Everything else is
-    the offline base's (:class:`~sb3_cql.common.OfflineSAC`). Defaults are tinkoff-ai/CORL's ``cql.py``'s; the thesis's
-    grasping settings are in ``hyperparams/cql.yml``.
+    the offline base's (:class:`~sb3_cql.common.OfflineSAC`). The defaults learn the weight (``cql_alpha`` 5 towards a
+    gap of 10, d3rlpy's ``CQLConfig``'s); the rest are tinkoff-ai/CORL's ``cql.py``'s. They were chosen across the data
+    sets of ``benchmarks/offline_suite.py``, where the fixed weight of 10 failed a sparse task's mixed data; the
+    thesis's grasping settings, a fixed weight among them, are in ``hyperparams/cql.yml``.
 
     :param policy: ``"MlpPolicy"``, ``"CnnPolicy"`` or ``"MultiInputPolicy"`` (SAC's, with CQL's actor and critic
         passes, :mod:`sb3_cql.cql.policies`).
@@ -45,12 +48,16 @@ class CQL(OfflineSAC):
         ``ReplayBuffer``; ``None`` for an empty buffer of ``buffer_size``.
     :param actor_learning_rate: the actor's learning rate; ``None`` for ``learning_rate`` (the critics', the entropy
         coefficient's and the Lagrange multiplier's).
-    :param cql_alpha: weight of each critic's conservative gap against its full TD loss, as CORL's ``cql_alpha``
-        (d3rlpy's ``conservative_weight`` ``w`` is ``w / 2`` here with two critics). ``0`` drops the term only: SAC's
-        own update also needs ``cql_deterministic_backup=False``, ``actor_bc_weight=0`` and no reward shaping.
+    :param cql_alpha: weight of each critic's conservative gap against its full TD loss, as CORL's ``cql_alpha`` and
+        d3rlpy's ``conservative_weight``; with ``cql_target_action_gap`` it is scaled by the learned ``alpha'``. ``0``
+        drops the term (in either form) only: SAC's own update also needs ``cql_deterministic_backup=False``,
+        ``actor_bc_weight=0`` and no reward shaping.
     :param cql_n_actions: actions sampled per state for each of the three log-sum-exp groups.
     :param cql_temperature: temperature ``T`` of the log-sum-exp.
-    :param cql_target_action_gap: with a value, learn the Lagrange multiplier ``alpha'`` that keeps the gap near it.
+    :param cql_target_action_gap: learn the Lagrange multiplier ``alpha'`` (from 1, at the critics' learning rate) that
+        eases the term while the gap is under this value and strengthens it above (d3rlpy's ``alpha_threshold``);
+        ``None`` for a fixed weight ``cql_alpha``. Given to ``load``, either form continues a model saved with the
+        other (a multiplier the save lacks starts at 1).
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
     :param bc_steps: first gradient steps (counted across ``learn`` calls and ``save``/``load``) whose actor loss is
@@ -122,6 +129,29 @@ class CQL(OfflineSAC):
         self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
         if self.cql_target_action_gap is not None:
             self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
+
+    def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        """The offline base's, then a warning where the settings are ones seen to fail on data like these
+        (:meth:`warn_of_settings_known_to_fail`)."""
+        super()._fill_from_dataset(dataset)
+        self.warn_of_settings_known_to_fail()
+
+    def warn_of_settings_known_to_fail(self) -> None:
+        """Warn, on one line, of a fixed ``cql_alpha`` of 10 or more without an anchor (``actor_bc_weight`` 0) on data
+        whose reward is sparse (:func:`rare_reward_share`): on the offline suite's sparse MountainCarContinuous-v0
+        mixture that setting never reached the goal, where the default learned weight always did."""
+        if self.alpha_prime_optimizer is not None or self.cql_alpha < 10.0 or self.actor_bc_weight > 0.0:
+            return
+        assert self.replay_buffer is not None
+        share = rare_reward_share(self.replay_buffer.rewards[: self.replay_buffer.size()])
+        if share is not None:
+            warnings.warn(
+                f"CQL with a fixed cql_alpha={self.cql_alpha:g} and no anchor on a sparse reward ({share:.2%} of the "
+                "transitions carry it) failed such data where the learned weight succeeded; leave "
+                "cql_target_action_gap at its default 10, or anchor the actor (actor_bc_weight); docs: cql.md, Defaults",
+                UserWarning,
+                stacklevel=2,
+            )
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """SAC's ``train()`` with the conservative term added to the critic loss, each variant of the update one
@@ -432,6 +462,20 @@ class CQL(OfflineSAC):
             state_dicts.append("alpha_prime_optimizer")
             variables.append("log_alpha_prime")
         return state_dicts, variables
+
+
+def rare_reward_share(rewards: np.ndarray, rare: float = 0.05) -> float | None:
+    """The share of transitions whose reward lies in the upper half of the rewards' range, where that share is under
+    ``rare`` (a sparse reward: rare successes against a floor of small or constant rewards, whatever its scale and
+    shift); ``None`` for a dense reward or a constant one."""
+    rewards = np.asarray(rewards, dtype=np.float64).ravel()
+    if rewards.size == 0 or not np.isfinite(rewards).all():
+        return None
+    low, high = rewards.min(), rewards.max()
+    if high - low <= 1e-8 * max(1.0, abs(high)):
+        return None
+    share = float(np.mean(rewards > (low + high) / 2))
+    return share if share < rare else None
 
 
 def _append(logs: dict[str, list[float]], key: str, value: float) -> None:
