@@ -27,7 +27,9 @@ def positive_int(text: str) -> int:
 
 
 def cql_keywords(text: str, extra_keys: tuple[str, ...] = ()) -> dict[str, Any]:
-    """An ``argparse`` type: a JSON object of CQL's keywords (and of ``extra_keys``, a script's own)."""
+    """An ``argparse`` type: a JSON object of CQL's keywords (and of ``extra_keys``, a script's own). The studies'
+    CQL has a fixed weight, as when they were run (the package's default learns it since 2026-12-06): without
+    ``cql_target_action_gap`` in the object, it is ``None``."""
     try:
         kwargs = json.loads(text)
     except json.JSONDecodeError as error:
@@ -37,7 +39,7 @@ def cql_keywords(text: str, extra_keys: tuple[str, ...] = ()) -> dict[str, Any]:
     unknown = sorted(set(kwargs) - set(extra_keys) - CQL_KEYWORDS)
     if unknown:
         raise argparse.ArgumentTypeError(f"not CQL keywords: {', '.join(unknown)}")
-    return kwargs
+    return {"cql_target_action_gap": None, **kwargs}
 
 
 def cql_from_clone(

@@ -53,7 +53,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--dataset-id", metavar="ID", default=DEFAULT_DATASET, help=f"Minari id of CQL's data (default {DEFAULT_DATASET})"
     )
-    parser.add_argument("--kwargs", metavar="JSON", type=cql_keywords, default={},
+    parser.add_argument("--kwargs", metavar="JSON", type=cql_keywords, default="{}",
                         help=f"JSON object of CQL keywords over the defaults {json.dumps(DEFAULT_KWARGS)}")  # fmt: skip
     parser.add_argument(
         "--every", metavar="N", type=positive_int, default=250, help="Q-following steps between probes (default 250)"

@@ -43,8 +43,9 @@ from gripper_reopenings import reopens
 from stable_baselines3.common.buffers import ReplayBuffer
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import CQL
+from sb3_cql import CQL, CalQL
 from sb3_cql.common import ActionChunkReplayBuffer, MixedReplayBuffer, ReturnToGoReplayBuffer
+from sb3_cql.common.offline import saved_algorithm
 from sb3_cql.data import DatasetError
 
 HEADER = (f"{'group':20s} {'states':>6s} {'RTG':>7s} {'Q(s,a)':>7s} {'Q(s,pi)':>7s} {'Q(s,pi)<RTG':>11s} "
@@ -151,7 +152,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     th.set_num_threads(args.threads)
     try:
-        model = CQL.load(args.model)
+        model = {"CalQL": CalQL}.get(saved_algorithm(args.model) or "CQL", CQL).load(args.model)
         offline, online = load_buffers(model, args.buffer)
     except (ValueError, OSError, DatasetError) as error:
         sys.exit(f"error: {error}")

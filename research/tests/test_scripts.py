@@ -215,7 +215,7 @@ def test_cql_from_clone_prints_success_and_saves_the_model(runs, inputs):
     assert re.fullmatch(rf"step 0: success rate {FLOAT}", lines[1])
     assert re.fullmatch(rf"step 2: success rate {FLOAT}, policy std {FLOATS}", lines[2])
     assert lines[3:] == [f"saved {run_dir / 'model.zip'}"]
-    model = CQL.load(run_dir / "model.zip")
+    model = load_script("cql_from_clone").ClippedBackupCQL.load(run_dir / "model.zip")  # the run's variant
     assert model._n_updates == 2 and model.batch_size == 16 and model.policy_kwargs["net_arch"] == [32]
     clone = BC.load(inputs / "bc.zip").actor.state_dict()
     for key, value in model.actor.state_dict().items():  # the clone's actor after 2 steps at CQL's actor rate, 3e-5
@@ -390,7 +390,7 @@ def test_values_vs_returns_scores_online_and_offline_states_against_their_return
     states, rtg, q_data, q_policy, below, correlation, median, far_below = rows["online failed"]
     assert (int(states), correlation) == (FINETUNED_STEPS, "nan")  # one return-to-go: no correlation
     assert float(rtg) == pytest.approx(floor, abs=0.05)  # printed with one decimal
-    model = CQL.load(inputs / "finetuned.zip")
+    model = CalQL.load(inputs / "finetuned.zip")
     model.load_replay_buffer(inputs / "finetuned_buffer.pkl")
     online = model.replay_buffer.online
     observations, actions = (th.as_tensor(array[:FINETUNED_STEPS, 0]) for array in (online.observations, online.actions))
@@ -410,7 +410,7 @@ def test_values_vs_returns_scores_online_and_offline_states_against_their_return
 
 def test_values_vs_returns_bins_a_successful_episodes_states_by_steps_before_its_end(inputs):
     script = load_script("values_vs_returns")
-    model = CQL.load(inputs / "finetuned.zip")
+    model = CalQL.load(inputs / "finetuned.zip")
     model.load_replay_buffer(inputs / "finetuned_buffer.pkl")
     online = script.with_returns_to_go(model, model.replay_buffer.online)
     episode = np.arange(250)  # taken as one episode: its last 100 states, the 100 before, then 50
