@@ -1,0 +1,59 @@
+"""``benchmarks/offline_suite.py``, the suite the constructors' defaults are chosen on: a tiny run of it writes one
+record a run scored against its own data, resumes by run, and refuses a bad variant on one line."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SUITE = Path(__file__).parents[1] / "benchmarks" / "offline_suite.py"
+TINY = ["--datasets", "mountaincar-weak", "--algorithms", "bc", "iql", "--steps", "5", "--eval-episodes", "1", "--seeds", "0"]
+
+
+def suite(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SUITE), *args], capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def out(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("suite")
+    finished = suite(str(out), *TINY)
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    return out
+
+
+def test_each_run_is_one_record_scored_against_its_own_data(out):
+    data = np.load(out / "data" / "mountaincar-weak.npz")
+    episodes = int(data["terminations"].sum() + (data["truncations"] & ~data["terminations"]).sum())
+    success = float(data["terminations"].sum()) / episodes
+    runs = sorted(path.name for path in (out / "runs").iterdir())
+    assert runs == ["mountaincar-weak-sb3-cql-bc-seed0.json", "mountaincar-weak-sb3-cql-iql-seed0.json"]
+    for name, algorithm in zip(runs, ("bc", "iql"), strict=True):
+        record = json.loads((out / "runs" / name).read_text())
+        assert (record["dataset"], record["library"], record["algorithm"], record["label"]) == (
+            "mountaincar-weak", "sb3-cql", algorithm, None)  # fmt: skip
+        assert (record["seed"], record["steps"], record["keywords"]) == (0, 5, {})
+        assert record["data"] == pytest.approx(success) and episodes == 100
+        assert len(record["successes"]) == len(record["returns"]) == 1
+        assert record["score"] == pytest.approx(np.mean(record["successes"]))  # a sparse task: scored by success
+
+
+def test_the_same_command_skips_the_runs_already_made(out):
+    before = {path.name: path.stat().st_mtime_ns for path in (out / "runs").iterdir()}
+    finished = suite(str(out), *TINY)
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert "seed0:" not in finished.stdout  # no run made again
+    assert {path.name: path.stat().st_mtime_ns for path in (out / "runs").iterdir()} == before
+    table = suite(str(out), "--table").stdout
+    assert "| our BC | 0." in table and "| our IQL |" in table and "| the data | 0.46 |" in table
+
+
+@pytest.mark.parametrize("variant", ["raw", "raw={normalize_observations: false}", 'raw=["normalize_observations"]'])
+def test_a_bad_variant_is_refused_on_one_line(tmp_path, variant):
+    finished = suite(str(tmp_path), *TINY, "--variant", variant)
+    assert finished.returncode == 2
+    assert [line for line in finished.stderr.splitlines() if line.startswith("offline_suite.py: error:")]
+    assert "Traceback" not in finished.stderr and not (tmp_path / "runs").exists()
