@@ -425,6 +425,14 @@ def main(argv: list[str] | None = None) -> int:
         if not label.isidentifier() or not isinstance(keywords, dict):
             example = "raw='{\"normalize_observations\": false}'"
             parser.error(f"--variant {args.variant!r}: LABEL=JSON of keywords expected, e.g. {example}")
+        from sb3_cql import BC, CQL, IQL
+        from sb3_cql.common import KeywordError
+
+        for algorithm in args.algorithms:  # before any data are made or run trained
+            try:
+                {"cql": CQL, "iql": IQL, "bc": BC}[algorithm].refuse_unknown_keywords(keywords)
+            except KeywordError as error:
+                parser.error(f"--variant {args.variant!r}: {error}")
     lane, _, lanes = args.lane.partition("/")
     if not (lane.isdigit() and lanes.isdigit() and int(lane) < int(lanes)):
         parser.error(f"--lane {args.lane!r}: I/N with 0 <= I < N expected, e.g. 0/2")

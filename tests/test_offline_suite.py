@@ -51,9 +51,12 @@ def test_the_same_command_skips_the_runs_already_made(out):
     assert "| our BC | 0." in table and "| our IQL |" in table and "| the data | 0.46 |" in table
 
 
-@pytest.mark.parametrize("variant", ["raw", "raw={normalize_observations: false}", 'raw=["normalize_observations"]'])
+@pytest.mark.parametrize("variant", ["raw", "raw={normalize_observations: false}", 'raw=["normalize_observations"]',
+                                     'raw={"normalise_observations": false}'])  # fmt: skip
 def test_a_bad_variant_is_refused_on_one_line(tmp_path, variant):
     finished = suite(str(tmp_path), *TINY, "--variant", variant)
     assert finished.returncode == 2
     assert [line for line in finished.stderr.splitlines() if line.startswith("offline_suite.py: error:")]
     assert "Traceback" not in finished.stderr and not (tmp_path / "runs").exists()
+    if "normalise" in variant:
+        assert "did you mean normalize_observations?" in finished.stderr
