@@ -47,7 +47,8 @@ its episodes, so a user with a Minari dataset meets the same defaults; the rows 
 
 Each run is one file, ``OUT/runs/DATASET-LIBRARY-ALGORITHM[-LABEL]-seedS.json``, written whole or not at all: the same
 command skips the runs already there, so a killed suite resumes by run. ``--lane I/N`` takes every N-th run from
-the I-th (0-based), one lane a core. ``--table`` prints the table of the runs in ``OUT`` (mean and range over seeds).
+the I-th (0-based), one lane a core. Our trained models are kept beside the records, in ``OUT/models``. ``--table``
+prints the table of the runs in ``OUT`` (mean and range over seeds).
 """
 
 from __future__ import annotations
@@ -340,7 +341,7 @@ def run_ours(algorithm: str, name: str, data: dict, seed: int, keywords: dict, a
     model.learn(args.steps)
     seconds = time.perf_counter() - start
     returns, successes = evaluate(lambda o: model.predict(o, deterministic=True)[0], env_id, args.eval_episodes)
-    return {"returns": returns, "successes": successes, "seconds": seconds}
+    return {"returns": returns, "successes": successes, "seconds": seconds, "model": model}
 
 
 def run_d3rlpy(algorithm: str, name: str, seed: int, args: argparse.Namespace) -> dict:
@@ -374,6 +375,14 @@ def write_json(path: Path, record: dict) -> None:
     with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".json", delete=False) as file:
         json.dump(record, file)
     os.replace(file.name, path)
+
+
+def save_model(model, path: Path) -> None:
+    """The trained model beside its record, for a look at its critic afterwards (written whole or not at all)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    model.save(partial)
+    os.replace(partial, path)
 
 
 def table(out: Path) -> str:
@@ -454,6 +463,7 @@ def main(argv: list[str] | None = None) -> int:
             write_minari(dataset, data, args.out / "minari")
         if library == "sb3-cql":
             result = run_ours(algorithm, dataset, data, seed, keywords, args)
+            save_model(result.pop("model"), args.out / "models" / f"{path.stem}.zip")
         else:
             result = run_d3rlpy(algorithm, dataset, seed, args)
         scored = result["successes"] if task_of(dataset).scored_by == "success" else result["returns"]

@@ -41,6 +41,16 @@ def test_each_run_is_one_record_scored_against_its_own_data(out):
         assert record["score"] == pytest.approx(np.mean(record["successes"]))  # a sparse task: scored by success
 
 
+def test_each_model_is_kept_beside_its_record_and_loads_with_its_class(out):
+    from sb3_cql import BC, IQL
+
+    assert sorted(path.name for path in (out / "models").iterdir()) == [
+        "mountaincar-weak-sb3-cql-bc-seed0.zip", "mountaincar-weak-sb3-cql-iql-seed0.zip"]  # fmt: skip
+    model = IQL.load(out / "models" / "mountaincar-weak-sb3-cql-iql-seed0.zip")
+    assert isinstance(model, IQL) and model.num_timesteps == 5
+    assert isinstance(BC.load(out / "models" / "mountaincar-weak-sb3-cql-bc-seed0.zip"), BC)
+
+
 def test_the_same_command_skips_the_runs_already_made(out):
     before = {path.name: path.stat().st_mtime_ns for path in (out / "runs").iterdir()}
     finished = suite(str(out), *TINY)
