@@ -496,3 +496,39 @@ def test_iql_refuses_the_keywords_of_an_entropy_term_it_does_not_have():
     assert "ent_coef" not in IQL.known_keywords() and {"batch_size", "reward_scale", "online_fraction"} <= IQL.known_keywords()
     with pytest.raises(KeywordError, match=r"^IQL does not take ent_coef, target_entropy: its actor has no entropy term$"):
         IQL("MlpPolicy", "Pendulum-v1", ent_coef=0.1, target_entropy=-1.0)
+
+
+@pytest.mark.parametrize("algorithm", [IQL, CQL])
+def test_the_actor_loss_reads_the_critics_without_computing_the_gradients_of_their_weights(algorithm):
+    """The actor's loss back-propagates through the critics to the actions and stops there: the actor's gradients are
+    those of the same loss through trainable critics (by hand), the critics get none, and stay trainable after."""
+    if algorithm is IQL:
+        model = pendulum_iql(actor_loss_type="ddpg_awr", actor_bc_weight=2.0)
+    else:
+        model = CQL("MlpPolicy", gym.make("Pendulum-v1"), dataset=random_rollouts(gym.make("Pendulum-v1"), 300),
+                    batch_size=16, seed=0, policy_kwargs=TINY, bc_steps=0, actor_bc_weight=0.0)  # fmt: skip
+    batch = model.replay_buffer.sample(16)
+    mean_actions, log_std, _ = model.actor.get_action_dist_params(batch.observations)
+    if algorithm is IQL:
+        loss = model.ddpg_actor_loss(batch, th.ones(16), {})
+        actions_pi = th.tanh(mean_actions)
+        q_pi = th.min(*model.critic(batch.observations, actions_pi)).squeeze(1)
+        spread = -th.distributions.Normal(actions_pi.detach(), log_std.exp()).log_prob(batch.actions).sum(-1).mean()
+        squared_errors = ((actions_pi - batch.actions) ** 2).mean(dim=1)
+        by_hand = -q_pi.mean() / q_pi.abs().mean().detach() + 2.0 * squared_errors.mean() + spread
+    else:
+        actions_pi, log_prob = model.actor.action_dist.log_prob_from_params(mean_actions, log_std)
+        ent_coef = th.tensor(0.1)
+        loss = model.compute_actor_loss(batch, (mean_actions, log_std), actions_pi, log_prob.reshape(-1, 1), ent_coef, {})
+        q_pi = th.min(*model.critic(batch.observations, actions_pi))
+        by_hand = (ent_coef * log_prob.reshape(-1, 1) - q_pi).mean()
+    actor_parameters = list(model.actor.parameters())
+    gradients = th.autograd.grad(loss, actor_parameters, retain_graph=True)
+    loss.backward(retain_graph=True)  # the actor's part of the graph is by_hand's too
+    assert all(parameter.grad is None for parameter in model.critic.parameters())
+    assert all(parameter.requires_grad for parameter in model.critic.parameters())
+    assert by_hand.item() == pytest.approx(loss.item(), rel=1e-6)
+    for mine, theirs in zip(gradients, th.autograd.grad(by_hand, actor_parameters, retain_graph=True), strict=True):
+        assert th.allclose(mine, theirs, rtol=1e-5, atol=1e-7)
+    by_hand.backward()
+    assert all(parameter.grad is not None for parameter in model.critic.parameters())  # the check can tell

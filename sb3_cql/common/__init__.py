@@ -11,7 +11,7 @@ _MODULES = {name: module for module, names in {
     "buffers": ("ActionChunkReplayBuffer", "MixedReplayBuffer", "ReturnToGoReplayBuffer", "ReturnToGoSamples", "returns_to_go",
                 "with_n_step_returns"),
     "noise": ("HeldActionNoise", "pink_action_noise"),
-    "offline": ("OfflineSAC", "behaviour_cloning_loss"),
+    "offline": ("OfflineSAC", "behaviour_cloning_loss", "frozen"),
     "finetune": ("OnlineFineTuning",),
     "settings": ("KeywordError", "SettingError", "TrainingDivergedError"),
 }.items() for name in names}  # fmt: skip

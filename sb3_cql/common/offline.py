@@ -3,6 +3,7 @@ buffer: the base of :class:`~sb3_cql.CQL`, :class:`~sb3_cql.IQL` and :class:`~sb
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import io
 import json
@@ -10,7 +11,7 @@ import os
 import time
 import warnings
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import torch as th
@@ -55,6 +56,21 @@ def behaviour_cloning_loss(mean_actions: th.Tensor, actions: th.Tensor) -> th.Te
     """Mean squared error between a SAC actor's deterministic actions, ``tanh`` of its ``mean_actions`` (from
     ``Actor.get_action_dist_params``), and the data's ``actions`` (both in [-1, 1])."""
     return F.mse_loss(th.tanh(mean_actions), actions)
+
+
+@contextlib.contextmanager
+def frozen(module: th.nn.Module) -> Iterator[th.nn.Module]:
+    """``module`` with its parameters out of autograd's graph while the block runs: an actor loss that reads the
+    critics then back-propagates through them to the actions without computing the gradients of their weights, which
+    no step would use (the critics' own step zeroes them first). The actor's gradients are unchanged."""
+    parameters = [parameter for parameter in module.parameters() if parameter.requires_grad]
+    for parameter in parameters:
+        parameter.requires_grad_(False)
+    try:
+        yield module
+    finally:
+        for parameter in parameters:
+            parameter.requires_grad_(True)
 
 
 class OfflineSAC(OnlineFineTuning):

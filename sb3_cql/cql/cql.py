@@ -16,7 +16,7 @@ from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples, S
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss
+from sb3_cql.common.offline import OfflineSAC, behaviour_cloning_loss, frozen
 from sb3_cql.common.policies import map_observations
 from sb3_cql.common.settings import check_count, check_finite, check_non_negative, finite_loss_value
 from sb3_cql.cql.policies import FROM_SAC, CnnPolicy, CQLActor, CQLCritic, MlpPolicy, MultiInputPolicy
@@ -388,7 +388,8 @@ class CQL(OfflineSAC):
         log-std) at the observations, ``actions_pi`` its samples, ``log_prob`` their log-densities."""
         if self.in_warm_start():
             return self.warm_start_actor_loss(replay_data, ent_coef)
-        q_values_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1)
+        with frozen(self.critic) as critic:
+            q_values_pi = th.cat(critic(replay_data.observations, actions_pi), dim=1)
         min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
         actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
         return self.anchor_actor_loss(actor_loss, min_qf_pi, policy[0], replay_data, logs)

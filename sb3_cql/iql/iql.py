@@ -12,7 +12,7 @@ from stable_baselines3.common.type_aliases import GymEnv, ReplayBufferSamples
 from stable_baselines3.common.utils import polyak_update, update_learning_rate
 from torch.nn import functional as F
 
-from sb3_cql.common.offline import OfflineSAC
+from sb3_cql.common.offline import OfflineSAC, frozen
 from sb3_cql.common.settings import KeywordError, SettingError, check_finite, check_non_negative, finite_loss_value
 from sb3_cql.iql.policies import CnnPolicy, IQLPolicy, MlpPolicy, MultiInputPolicy, ValueNetwork
 
@@ -228,7 +228,8 @@ class IQL(OfflineSAC):
         of the data's actions under the spread around the detached mean. Logs ``train/actor_bc_loss``, unweighted."""
         mean_actions, log_std, _ = self.actor.get_action_dist_params(replay_data.observations)
         actions_pi = th.tanh(mean_actions)
-        q_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1).min(dim=1).values
+        with frozen(self.critic) as critic:
+            q_pi = th.cat(critic(replay_data.observations, actions_pi), dim=1).min(dim=1).values
         squared_errors = (actions_pi - replay_data.actions).pow(2).mean(dim=-1)
         logs.setdefault("train/actor_bc_loss", []).append(squared_errors.mean().item())
         spread = th.distributions.Normal(actions_pi.detach(), log_std.exp())
