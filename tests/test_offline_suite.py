@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch as th
 import pytest
 
 SUITE = Path(__file__).parents[1] / "benchmarks" / "offline_suite.py"
@@ -70,3 +71,21 @@ def test_a_bad_variant_is_refused_on_one_line(tmp_path, variant):
     assert "Traceback" not in finished.stderr and not (tmp_path / "runs").exists()
     if "normalise" in variant:
         assert "did you mean normalize_observations?" in finished.stderr
+
+
+def test_the_minari_source_trains_ours_on_the_same_data_as_the_buffer(out):
+    """``--source minari`` writes each data set as a Minari dataset under OUT/minari and gives it to ours as
+    ``dataset=``: the same arrays, so the same trained parameters as from the buffer, in rows labelled ``minari``."""
+    from sb3_cql import BC, IQL
+
+    finished = suite(str(out), *TINY, "--source", "minari")
+    assert finished.returncode == 0, finished.stderr[-3000:]
+    assert (out / "minari" / "offline-suite" / "mountaincar-weak-v0").is_dir()
+    for algorithm, model_class in (("bc", BC), ("iql", IQL)):
+        record = json.loads((out / "runs" / f"mountaincar-weak-sb3-cql-{algorithm}-minari-seed0.json").read_text())
+        assert (record["label"], record["source"]) == ("minari", "minari")
+        from_minari = model_class.load(out / "models" / f"mountaincar-weak-sb3-cql-{algorithm}-minari-seed0.zip")
+        from_buffer = model_class.load(out / "models" / f"mountaincar-weak-sb3-cql-{algorithm}-seed0.zip")
+        minari_state, buffer_state = from_minari.policy.state_dict(), from_buffer.policy.state_dict()
+        assert minari_state.keys() == buffer_state.keys()
+        assert all(th.equal(minari_state[key], buffer_state[key]) for key in minari_state)
