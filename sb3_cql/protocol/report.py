@@ -15,7 +15,7 @@ from sb3_cql.protocol.records import ResultsFolder, finetune_parts, read_json, w
 from sb3_cql.protocol.runs import Run
 
 #: Rows of the table in the thesis's order (then any other algorithm), and how they are printed.
-ROW_ORDER = ("cql", "bc", "pid", "pid-regrasp", "pid-regrasp-yaw", "pid-regrasp-aligned", "sac")
+ROW_ORDER = ("cql", "iql", "bc", "pid", "pid-regrasp", "pid-regrasp-yaw", "pid-regrasp-aligned", "sac")
 #: The share of a fine-tuning run's env steps in which its early dip is looked for.
 EARLY_SHARE = 0.2
 #: Bootstrap resamples of the interval estimates; the generator's seed, so a report is made again identically.
