@@ -498,7 +498,7 @@ def test_training_log_reads_what_a_training_printed_at_the_chosen_steps(tmp_path
     assert "missing.log: cannot read it" in str(exit_.value.code)
 
 
-@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure", "finetune_record", "training_log"])
+@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure", "finetune_record", "training_log", "suite_training_log"])
 def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(["--help"])
@@ -526,6 +526,9 @@ def test_help_shows_the_usage(name, capsys):
         ("finetune_record", ["run", "--output", "f.png", "--block", "0"], "argument --block: must be a positive integer"),
         ("finetune_record", ["a", "b", "--output", "f.png", "--labels", "x"], "--labels: 1 names for 2 runs"),
         ("values_vs_returns", ["model.zip", "buffer.pkl", "--offline-states", "0"], "must be a positive integer"),
+        ("suite_training_log", ["suite", "lunar-mixture", "out", "--keywords", "[1]"], "must be a JSON object"),
+        ("suite_training_log", ["suite", "lunar-mixture", "out", "--keywords", '{"cql_alhpa": 1}'], "cql_alhpa"),
+        ("suite_training_log", ["suite", "lunar", "out"], "argument dataset: invalid choice: 'lunar'"),
     ],
 )
 def test_a_bad_argument_is_a_usage_error(name, args, message, capsys):
@@ -601,3 +604,20 @@ def test_capped_iql_refuses_a_ceiling_that_is_not_a_finite_number_above_the_floo
         patch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
         CappedIQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, batch_size=16,
                   policy_kwargs={"net_arch": [32]}, target_floor=0.0, target_ceiling=ceiling)  # fmt: skip
+
+
+def test_suite_training_log_keeps_the_multipliers_log_the_model_and_its_score(tmp_path):
+    """A tiny run on the suite's weak MountainCarContinuous-v0 data: the training log holds the learned weight's
+    multiplier and the gap it answers to, beside the model and the score of its 20 episodes."""
+    import pandas as pd
+
+    script = load_script("suite_training_log")
+    assert script.main([str(tmp_path / "suite"), "mountaincar-weak", str(tmp_path / "out"), "--steps", "500",
+                        "--keywords", '{"batch_size": 16}']) == 0  # fmt: skip
+    log = pd.read_csv(tmp_path / "out" / "progress.csv")
+    assert list(log["train/n_updates"]) == [500]
+    assert 0 < log["train/cql_alpha_prime"].iloc[0] < 1  # the gap under its target of 10: the multiplier eased
+    assert log["train/cql_gap"].iloc[0] < 10
+    score = json.loads((tmp_path / "out" / "score.json").read_text())
+    assert len(score["successes"]) == 20 and score["score"] == pytest.approx(np.mean(score["successes"]))
+    assert CQL.load(tmp_path / "out" / "model.zip").batch_size == 16
