@@ -7,8 +7,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch as th
 import pytest
+import torch as th
 
 SUITE = Path(__file__).parents[1] / "benchmarks" / "offline_suite.py"
 TINY = ["--datasets", "mountaincar-weak", "--algorithms", "bc", "iql", "--steps", "5", "--eval-episodes", "1", "--seeds", "0"]

@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     model.save(args.out / "model.zip")
     returns, successes = suite.evaluate(lambda o: model.predict(o, deterministic=True)[0], task.env_id, 20)
     score = float(np.mean(successes if task.scored_by == "success" else returns))
-    (args.out / "score.json").write_text(json.dumps({"score": score, "returns": [float(r) for r in returns], "successes": [bool(s) for s in successes]}))
+    record = {"score": score, "returns": [float(r) for r in returns], "successes": [bool(s) for s in successes]}
+    (args.out / "score.json").write_text(json.dumps(record))
     print(f"{args.dataset}: {score:.3f}")
     return 0
 
