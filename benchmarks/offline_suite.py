@@ -377,14 +377,6 @@ def write_json(path: Path, record: dict) -> None:
     os.replace(file.name, path)
 
 
-def save_model(model, path: Path) -> None:
-    """The trained model beside its record, for a look at its critic afterwards (written whole or not at all)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")
-    model.save(partial)
-    os.replace(partial, path)
-
-
 def table(out: Path) -> str:
     """Mean (and range) over seeds of every row in ``OUT/runs``, a column per data set."""
     records = [json.loads(path.read_text()) for path in sorted((out / "runs").glob("*.json"))]
@@ -463,7 +455,7 @@ def main(argv: list[str] | None = None) -> int:
             write_minari(dataset, data, args.out / "minari")
         if library == "sb3-cql":
             result = run_ours(algorithm, dataset, data, seed, keywords, args)
-            save_model(result.pop("model"), args.out / "models" / f"{path.stem}.zip")
+            result.pop("model").save(args.out / "models" / f"{path.stem}.zip")  # whole or not at all, as ours save
         else:
             result = run_d3rlpy(algorithm, dataset, seed, args)
         scored = result["successes"] if task_of(dataset).scored_by == "success" else result["returns"]
