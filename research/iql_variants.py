@@ -7,6 +7,8 @@
 - :class:`CappedIQL`: the TD targets held below ``target_ceiling`` as ``target_floor`` holds them above (fine-tuning
   past the climb of the critics' values, ``research/studies/finetune-iql``; through the zoo as ``iql_capped``,
   ``research/zoo_train.py``).
+- :class:`OfflineAnchorIQL`: :class:`CappedIQL` whose actor's anchor reads only the offline half of a fine-tuning
+  batch (whether the actor's drift online comes from imitating its own exploration; ``iql_offline_anchor``).
 
 None is part of the package (nothing in ``sb3_cql`` imports this file); the first two were not better than the
 shipped settings on the random-yaw data. Use them from Python, from the repository's root::
@@ -28,7 +30,7 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch.nn import functional as F
 
 from sb3_cql import IQL
-from sb3_cql.common import SettingError
+from sb3_cql.common import MixedReplayBuffer, SettingError
 
 
 def expectile_bce_loss(logits: th.Tensor, targets: th.Tensor, expectile: float) -> th.Tensor:
@@ -129,3 +131,24 @@ class CappedIQL(IQL):
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
         return super().compute_target(replay_data, discounts).clamp(max=self.target_ceiling)
+
+
+class OfflineAnchorIQL(CappedIQL):
+    """:class:`CappedIQL` fine-tuned with the ``ddpg_awr`` actor's anchor on the offline rows of each batch only: the
+    online rows (the policy's own exploring actions) train the value and the critics, and enter the actor's loss
+    through the critics' value at its actions, but the actor does not regress onto them. Each offline row's
+    imitation weight is its advantage weight over their mean on the offline rows, so the anchor per offline row is
+    as strong as in a batch of offline data only. Offline (no online transitions yet) it is :class:`CappedIQL`.
+    Loads an :class:`~sb3_cql.IQL` model (``OfflineAnchorIQL.load(path, target_ceiling=1.0)``).
+    """
+
+    def actor_loss(self, replay_data: ReplayBufferSamples, weights: th.Tensor, logs: dict[str, list[float]]) -> th.Tensor:
+        buffer = self.replay_buffer
+        online = isinstance(buffer, MixedReplayBuffer) and buffer.online.size() > 0
+        if self.actor_loss_type != "ddpg_awr" or not online:
+            return super().actor_loss(replay_data, weights, logs)
+        n_offline = len(weights) - round(buffer.online_fraction * len(weights))  # MixedReplayBuffer: offline rows first
+        imitation = th.zeros_like(weights)
+        if n_offline:
+            imitation[:n_offline] = weights[:n_offline] / weights[:n_offline].mean() * (len(weights) / n_offline)
+        return self.ddpg_actor_loss(replay_data, imitation, logs)

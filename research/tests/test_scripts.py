@@ -498,7 +498,9 @@ def test_training_log_reads_what_a_training_printed_at_the_chosen_steps(tmp_path
     assert "missing.log: cannot read it" in str(exit_.value.code)
 
 
-@pytest.mark.parametrize("name", [*SCRIPTS, "alignment_figure", "finetune_record", "training_log", "suite_training_log"])
+@pytest.mark.parametrize(
+    "name", [*SCRIPTS, "alignment_figure", "finetune_drift", "finetune_record", "training_log", "suite_training_log"]
+)
 def test_help_shows_the_usage(name, capsys):
     with pytest.raises(SystemExit) as exit_:
         load_script(name).main(["--help"])
@@ -596,6 +598,28 @@ def test_capped_iql_holds_every_td_target_at_most_its_ceiling_and_loads_an_iql_m
     assert isinstance(loaded, CappedIQL) and loaded.target_ceiling == 0.5
 
 
+def test_offline_anchor_iql_anchors_the_actor_to_the_offline_rows_of_a_fine_tuning_batch(inputs):
+    """With online transitions, the ddpg_awr loss with the online rows' imitation weights 0 and the offline rows'
+    normalised over them; with none yet, IQL's own loss."""
+    import copy
+
+    from research.iql_variants import OfflineAnchorIQL
+    from sb3_cql.common import MixedReplayBuffer
+
+    model = tiny_cql(OfflineAnchorIQL, inputs)
+    model.actor_loss_type = "ddpg_awr"
+    weights = th.linspace(0.5, 2.0, 16)
+    data = model.replay_buffer.sample(16)
+    th.testing.assert_close(model.actor_loss(data, weights, {}), IQL.actor_loss(model, data, weights, {}))
+    offline = model.replay_buffer
+    model.replay_buffer = MixedReplayBuffer(offline, copy.deepcopy(offline), online_fraction=0.25)
+    data = model.replay_buffer.sample(16)  # 12 offline rows, then 4 online
+    imitation = th.cat([weights[:12] / weights[:12].mean() * 16 / 12, th.zeros(4)])
+    expected = IQL.ddpg_actor_loss(model, data, imitation, {})
+    th.testing.assert_close(model.actor_loss(data, weights, {}), expected)
+    assert not th.allclose(expected, IQL.actor_loss(model, data, weights, {}))
+
+
 @pytest.mark.parametrize("ceiling", [float("nan"), "1", -1.0])
 def test_capped_iql_refuses_a_ceiling_that_is_not_a_finite_number_above_the_floor(inputs, ceiling):
     from research.iql_variants import CappedIQL
@@ -621,3 +645,53 @@ def test_suite_training_log_keeps_the_multipliers_log_the_model_and_its_score(tm
     score = json.loads((tmp_path / "out" / "score.json").read_text())
     assert len(score["successes"]) == 20 and score["score"] == pytest.approx(np.mean(score["successes"]))
     assert CQL.load(tmp_path / "out" / "model.zip").batch_size == 16
+
+
+def test_finetune_drift_reads_the_actor_against_its_critics_and_the_closings(inputs, tmp_path, monkeypatch, capsys):
+    """The fixture's IQL model fine-tuned one 700-step episode online (ddpg_awr, half the batch online), its
+    checkpoint and online transitions read against the start: the start's row is all zeros, the checkpoint's changes
+    are the actions' by hand, and the data's closings are counted as the controller made them."""
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+    script = load_script("finetune_drift")
+    model = IQL.load(inputs / "iql.zip", env=gym.make("PandaForce-v0", action_mode="delta"), actor_loss_type="ddpg_awr",
+                     online_fraction=0.5, learning_starts=0, seed=0)  # fmt: skip
+    model.learn(FINETUNED_STEPS)
+    model.save(tmp_path / "tuned.zip")
+    model.save_replay_buffer(tmp_path / "tuned.pkl")
+    script.main([str(inputs / "iql.zip"), str(tmp_path / "tuned.zip"), "--buffer", str(tmp_path / "tuned.pkl"),
+                 "--states", "64", "--window", "500"])  # fmt: skip
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:3] == ["checkpoint", "|da|", "arm"]
+    assert re.fullmatch(rf"\S+/iql\.zip +0\.000 +0\.000 +\+0\.0000 +{SIGNED} +{FLOAT}", lines[1]), lines[1]
+    row = lines[2].split()
+    assert row[0].endswith("/tuned.zip")
+    start, tuned = IQL.load(inputs / "iql.zip"), IQL.load(tmp_path / "tuned.zip")
+    observations, _ = script.probe_states(start.load_offline_data(), model.replay_buffer.online, 64)
+    actions = [policy.predict(observations.numpy(), deterministic=True)[0] for policy in (start, tuned)]
+    change = np.abs(actions[1] - actions[0])
+    assert (row[1], row[2]) == (f"{change[:, :7].mean():.3f}", f"{change[:, 7:].mean():.3f}")
+    assert float(row[1]) > 0 and float(row[2]) > 0  # the actor moved, its arm and its fingers
+    assert 0 <= float(row[5]) <= 1
+    assert lines[3].split()[:4] == ["closings", "at", "50-90", "deg"]
+    angles = [angle for episode in load_dataset(YAW_DATASET).iterate_episodes()
+              for angle in envs.pd_controller.closing_angles(episode.observations)]  # fmt: skip
+    closings = sum(angle is not None and angle >= 50 for angle in angles)
+    assert lines[4].split()[:4] == ["offline", "data", "2", str(closings)]
+    assert lines[5].split()[:4] == ["online", "0-500", "1", lines[5].split()[3]] and len(lines) == 6
+
+
+def test_finetune_drift_anchor_share_is_the_anchors_part_of_the_gradient(inputs):
+    """No anchor: a share of 0; an anchor a million times the critics' normalised value: a share near 1."""
+    script = load_script("finetune_drift")
+    model = IQL.load(inputs / "iql.zip", actor_loss_type="ddpg_awr")
+    observations, actions = th.zeros(8, model.observation_space.shape[0]), th.full((8, ACTION_DIM), 0.5)
+    model.actor_bc_weight = 0.0
+    assert script.anchor_share(model, observations, actions) == 0.0
+    model.actor_bc_weight = 1e6
+    assert script.anchor_share(model, observations, actions) > 0.99
+
+
+def test_finetune_drift_refuses_a_missing_file_on_one_line(tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        load_script("finetune_drift").main([str(tmp_path / "a.zip"), str(tmp_path / "b.zip"), "--buffer", "c.pkl"])
+    assert exit_.value.code == f"error: no file {tmp_path / 'a.zip'}"
