@@ -24,8 +24,14 @@ from sb3_cql.zoo.plugin import register  # noqa: E402
 #: The zoo's names of the research variants.
 VARIANTS = {"iql_capped": CappedIQL, "iql_offline_anchor": OfflineAnchorIQL}
 
-if __name__ == "__main__":
+
+def register_variants() -> None:
+    """The package's algorithms and the research variants in RL-Zoo3's ``ALGOS``."""
     register()
     for name, algorithm in VARIANTS.items():
         utils.ALGOS[name] = with_atomic_saves(algorithm)
+
+
+if __name__ == "__main__":
+    register_variants()
     train()
