@@ -30,7 +30,7 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from torch.nn import functional as F
 
 from sb3_cql import IQL
-from sb3_cql.common import MixedReplayBuffer, SettingError
+from sb3_cql.common import MixedReplayBuffer, ReturnToGoReplayBuffer, SettingError
 
 
 def expectile_bce_loss(logits: th.Tensor, targets: th.Tensor, expectile: float) -> th.Tensor:
@@ -151,4 +151,41 @@ class OfflineAnchorIQL(CappedIQL):
         imitation = th.zeros_like(weights)
         if n_offline:
             imitation[:n_offline] = weights[:n_offline] / weights[:n_offline].mean() * (len(weights) / n_offline)
+        return self.ddpg_actor_loss(replay_data, imitation, logs)
+
+
+class SuccessAnchorIQL(OfflineAnchorIQL):
+    """:class:`OfflineAnchorIQL` whose anchor also reads the online rows of the episodes that succeeded after them:
+    an online row's imitation weight is 1 where its return-to-go is above 0 (the reward of 1 at a success came later
+    in its episode) and 0 elsewhere, including the rows of an episode still running. The exploring episodes that
+    succeed are imitated whatever the critics make of them; the offline rows keep their advantage weights. The
+    buffers hold returns-to-go (:class:`~sb3_cql.common.ReturnToGoReplayBuffer`, as Cal-QL's), so the critics'
+    rewards must be 0 but at a success: ``reward_bias`` 0. Loads an :class:`~sb3_cql.IQL` model
+    (``SuccessAnchorIQL.load(path, target_ceiling=1.0)``).
+    """
+
+    def _check_settings(self) -> None:
+        super()._check_settings()
+        if self.reward_bias != 0:
+            raise SettingError(
+                f"SuccessAnchorIQL reads a success as a return-to-go above 0: reward_bias must be 0, got {self.reward_bias}"
+            )
+
+    def _fill_from_dataset(self, dataset: Any) -> None:
+        """IQL's, then the buffer with its returns-to-go (its arrays shared)."""
+        super()._fill_from_dataset(dataset)
+        self.replay_buffer = ReturnToGoReplayBuffer.from_replay_buffer(
+            self.replay_buffer, self.gamma, self.reward_scale, self.reward_bias
+        )
+
+    def actor_loss(self, replay_data: ReplayBufferSamples, weights: th.Tensor, logs: dict[str, list[float]]) -> th.Tensor:
+        buffer = self.replay_buffer
+        online = isinstance(buffer, MixedReplayBuffer) and buffer.online.size() > 0
+        if self.actor_loss_type != "ddpg_awr" or not online:
+            return super().actor_loss(replay_data, weights, logs)
+        n_offline = len(weights) - round(buffer.online_fraction * len(weights))
+        imitation = (replay_data.returns_to_go.squeeze(1) > 0).to(weights.dtype)
+        if n_offline:
+            imitation[:n_offline] = weights[:n_offline] / weights[:n_offline].mean()
+        logs.setdefault("train/online_success_rows", []).append(imitation[n_offline:].mean().item())
         return self.ddpg_actor_loss(replay_data, imitation, logs)

@@ -17,12 +17,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from rl_zoo3 import utils  # noqa: E402
 from rl_zoo3.train import train  # noqa: E402
 
-from research.iql_variants import CappedIQL, OfflineAnchorIQL  # noqa: E402
+from research.iql_variants import CappedIQL, OfflineAnchorIQL, SuccessAnchorIQL  # noqa: E402
 from sb3_cql.common.atomic import with_atomic_saves  # noqa: E402
 from sb3_cql.zoo.plugin import register  # noqa: E402
 
 #: The zoo's names of the research variants.
-VARIANTS = {"iql_capped": CappedIQL, "iql_offline_anchor": OfflineAnchorIQL}
+VARIANTS = {"iql_capped": CappedIQL, "iql_offline_anchor": OfflineAnchorIQL, "iql_success_anchor": SuccessAnchorIQL}
 
 
 def register_variants() -> None:

@@ -620,6 +620,33 @@ def test_offline_anchor_iql_anchors_the_actor_to_the_offline_rows_of_a_fine_tuni
     assert not th.allclose(expected, IQL.actor_loss(model, data, weights, {}))
 
 
+def test_success_anchor_iql_imitates_the_online_rows_of_episodes_that_succeeded(inputs, tmp_path):
+    """Fine-tuned for one episode online from a saved IQL model: the buffers hold returns-to-go, and the actor's loss
+    is the ddpg_awr loss with the online rows' imitation weights 1 where the return-to-go is above 0, else 0."""
+    from research.iql_variants import SuccessAnchorIQL
+    from sb3_cql.common import ReturnToGoReplayBuffer
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MINARI_DATASETS_PATH", str(inputs / "datasets"))
+        iql = IQL("MlpPolicy", gym.make("Panda-v0", action_mode="delta"), dataset=DATASET, seed=0, batch_size=16,
+                  policy_kwargs={"net_arch": [32]})  # fmt: skip
+        iql.save(tmp_path / "iql.zip")
+        model = SuccessAnchorIQL.load(tmp_path / "iql.zip", env=gym.make("Panda-v0", action_mode="delta"),
+                                      actor_loss_type="ddpg_awr", online_fraction=0.5, learning_starts=0, seed=0)  # fmt: skip
+        model.learn(FINETUNED_STEPS)
+    buffer = model.replay_buffer
+    assert isinstance(buffer.offline, ReturnToGoReplayBuffer) and isinstance(buffer.online, ReturnToGoReplayBuffer)
+    assert buffer.online.size() == FINETUNED_STEPS
+    buffer.online.returns_to_go[:FINETUNED_STEPS:2] = 0.5  # as if every other row's episode had succeeded
+    data = buffer.sample(16)  # 8 offline rows, then 8 online
+    assert set(data.returns_to_go[8:, 0].tolist()) == {0.0, 0.5}
+    weights = th.linspace(0.5, 2.0, 16)
+    imitation = th.cat([weights[:8] / weights[:8].mean(), (data.returns_to_go[8:, 0] > 0).float()])
+    th.testing.assert_close(model.actor_loss(data, weights, {}), IQL.ddpg_actor_loss(model, data, imitation, {}))
+    with pytest.raises(SettingError, match="reward_bias must be 0"):
+        SuccessAnchorIQL.load(tmp_path / "iql.zip", reward_bias=-0.5)
+
+
 @pytest.mark.parametrize("ceiling", [float("nan"), "1", -1.0])
 def test_capped_iql_refuses_a_ceiling_that_is_not_a_finite_number_above_the_floor(inputs, ceiling):
     from research.iql_variants import CappedIQL
