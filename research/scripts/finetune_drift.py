@@ -6,7 +6,7 @@ Usage: python research/scripts/finetune_drift.py START.zip CHECKPOINT.zip [CHECK
 
 ``START.zip`` is the offline model, the checkpoints are the run's (``rl_model_<N>_steps.zip``, in order), ``PKL`` a
 replay buffer the run saved (``rl_model_replay_buffer_<N>_steps.pkl``: its online transitions, the run's exploring
-episodes). ``--algo`` names the class (``iql``, or ``iql_capped`` for ``research.iql_variants.CappedIQL``). Two
+episodes). ``--algo`` names the class (``iql``, or a research variant's zoo name: ``research/zoo_train.py``). Two
 readings:
 
 - **The actor against its critics**, at ``--states`` states drawn from the offline data and as many from the online
@@ -59,14 +59,10 @@ ARM, FINGERS = slice(0, 7), slice(7, 9)
 
 
 def load_class(name: str) -> type[IQL]:
-    """``iql`` or a research variant's name."""
-    if name == "iql":
-        return IQL
-    if name == "iql_capped":
-        from research.iql_variants import CappedIQL
+    """``iql`` or the zoo name of a research variant (:data:`research.zoo_train.VARIANTS`)."""
+    from research.zoo_train import VARIANTS
 
-        return CappedIQL
-    raise ValueError(f"--algo must be iql or iql_capped, got {name!r}")
+    return IQL if name == "iql" else VARIANTS[name]
 
 
 def episodes(observations: np.ndarray, actions: np.ndarray, rewards: np.ndarray, ends: np.ndarray):
@@ -161,7 +157,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("start", metavar="START.zip")
     parser.add_argument("checkpoints", nargs="+", metavar="CHECKPOINT.zip")
     parser.add_argument("--buffer", required=True, metavar="PKL")
-    parser.add_argument("--algo", default="iql", choices=("iql", "iql_capped"))
+    parser.add_argument("--algo", default="iql", choices=("iql", "iql_capped", "iql_offline_anchor", "iql_success_anchor"))
     parser.add_argument("--states", type=positive_int, default=2000)
     parser.add_argument("--window", type=positive_int, default=10000)
     parser.add_argument("--threads", type=positive_int, default=1)
