@@ -50,6 +50,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))  # the repo
 
 from envs.panda_env import OBSERVATION_SLICES  # noqa: E402
 from envs.pd_controller import closing_angle, closing_steps  # noqa: E402
+from research.zoo_train import VARIANTS  # noqa: E402
 from sb3_cql import IQL  # noqa: E402
 
 #: How many steps after a closing the reopening and the rises are read over.
@@ -60,8 +61,6 @@ ARM, FINGERS = slice(0, 7), slice(7, 9)
 
 def load_class(name: str) -> type[IQL]:
     """``iql`` or the zoo name of a research variant (:data:`research.zoo_train.VARIANTS`)."""
-    from research.zoo_train import VARIANTS
-
     return IQL if name == "iql" else VARIANTS[name]
 
 
@@ -157,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("start", metavar="START.zip")
     parser.add_argument("checkpoints", nargs="+", metavar="CHECKPOINT.zip")
     parser.add_argument("--buffer", required=True, metavar="PKL")
-    parser.add_argument("--algo", default="iql", choices=("iql", "iql_capped", "iql_offline_anchor", "iql_success_anchor"))
+    parser.add_argument("--algo", default="iql", choices=("iql", *VARIANTS))
     parser.add_argument("--states", type=positive_int, default=2000)
     parser.add_argument("--window", type=positive_int, default=10000)
     parser.add_argument("--threads", type=positive_int, default=1)
