@@ -144,23 +144,30 @@ class OfflineAnchorIQL(CappedIQL):
 
     def actor_loss(self, replay_data: ReplayBufferSamples, weights: th.Tensor, logs: dict[str, list[float]]) -> th.Tensor:
         buffer = self.replay_buffer
-        online = isinstance(buffer, MixedReplayBuffer) and buffer.online.size() > 0
-        if self.actor_loss_type != "ddpg_awr" or not online:
+        if self.actor_loss_type != "ddpg_awr" or not (isinstance(buffer, MixedReplayBuffer) and buffer.online.size()):
             return super().actor_loss(replay_data, weights, logs)
         n_offline = len(weights) - round(buffer.online_fraction * len(weights))  # MixedReplayBuffer: offline rows first
+        return self.ddpg_actor_loss(replay_data, self.imitation_weights(replay_data, weights, n_offline, logs), logs)
+
+    def imitation_weights(
+        self, replay_data: ReplayBufferSamples, weights: th.Tensor, n_offline: int, logs: dict[str, list[float]]
+    ) -> th.Tensor:
+        """The anchor's weight of each row of a batch whose first ``n_offline`` rows are offline data: theirs their
+        advantage ``weights`` over their mean, scaled to the whole batch; the online rows' 0."""
         imitation = th.zeros_like(weights)
         if n_offline:
             imitation[:n_offline] = weights[:n_offline] / weights[:n_offline].mean() * (len(weights) / n_offline)
-        return self.ddpg_actor_loss(replay_data, imitation, logs)
+        return imitation
 
 
 class SuccessAnchorIQL(OfflineAnchorIQL):
     """:class:`OfflineAnchorIQL` whose anchor also reads the online rows of the episodes that succeeded after them:
     an online row's imitation weight is 1 where its return-to-go is above 0 (the reward of 1 at a success came later
-    in its episode) and 0 elsewhere, including the rows of an episode still running. The exploring episodes that
-    succeed are imitated whatever the critics make of them; the offline rows keep their advantage weights. The
-    buffers hold returns-to-go (:class:`~sb3_cql.common.ReturnToGoReplayBuffer`, as Cal-QL's), so the critics'
-    rewards must be 0 but at a success: ``reward_bias`` 0. Loads an :class:`~sb3_cql.IQL` model
+    in its episode) and 0 elsewhere, including the rows of an episode still running; the offline rows' is their
+    advantage weight over its mean on them. The exploring episodes that succeed are imitated whatever the critics
+    make of them. The buffers hold returns-to-go (:class:`~sb3_cql.common.ReturnToGoReplayBuffer`, as Cal-QL's), so
+    the critics' rewards must be 0 but at a success: ``reward_bias`` 0. Logs ``train/online_success_rows``, the
+    share of the online rows imitated. Loads an :class:`~sb3_cql.IQL` model
     (``SuccessAnchorIQL.load(path, target_ceiling=1.0)``).
     """
 
@@ -178,14 +185,11 @@ class SuccessAnchorIQL(OfflineAnchorIQL):
             self.replay_buffer, self.gamma, self.reward_scale, self.reward_bias
         )
 
-    def actor_loss(self, replay_data: ReplayBufferSamples, weights: th.Tensor, logs: dict[str, list[float]]) -> th.Tensor:
-        buffer = self.replay_buffer
-        online = isinstance(buffer, MixedReplayBuffer) and buffer.online.size() > 0
-        if self.actor_loss_type != "ddpg_awr" or not online:
-            return super().actor_loss(replay_data, weights, logs)
-        n_offline = len(weights) - round(buffer.online_fraction * len(weights))
+    def imitation_weights(
+        self, replay_data: ReplayBufferSamples, weights: th.Tensor, n_offline: int, logs: dict[str, list[float]]
+    ) -> th.Tensor:
         imitation = (replay_data.returns_to_go.squeeze(1) > 0).to(weights.dtype)
         if n_offline:
             imitation[:n_offline] = weights[:n_offline] / weights[:n_offline].mean()
         logs.setdefault("train/online_success_rows", []).append(imitation[n_offline:].mean().item())
-        return self.ddpg_actor_loss(replay_data, imitation, logs)
+        return imitation

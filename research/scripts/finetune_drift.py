@@ -52,6 +52,7 @@ from envs.panda_env import OBSERVATION_SLICES  # noqa: E402
 from envs.pd_controller import closing_angle, closing_steps  # noqa: E402
 from research.zoo_train import VARIANTS  # noqa: E402
 from sb3_cql import IQL  # noqa: E402
+from sb3_cql.common import MixedReplayBuffer  # noqa: E402
 
 #: How many steps after a closing the reopening and the rises are read over.
 AFTER = 40
@@ -167,9 +168,13 @@ def main(argv: list[str] | None = None) -> None:
     th.set_num_threads(args.threads)
     algorithm = load_class(args.algo)
 
-    start = algorithm.load(args.start, device="cpu")
-    offline = start.load_offline_data()
-    online = load_from_pkl(args.buffer).online
+    try:
+        start = algorithm.load(args.start, device="cpu")
+        offline = start.load_offline_data()
+        buffer = load_from_pkl(args.buffer)
+    except Exception as error:  # a file of another kind or algorithm: one line, not a traceback
+        raise SystemExit(f"error: {type(error).__name__}: {error}") from None
+    online = buffer.online if isinstance(buffer, MixedReplayBuffer) else buffer  # a fine-tuning checkpoint's, or a plain one
     off_obs, off_act, off_rew, off_ends = buffer_rows(offline)
     on_obs, on_act, on_rew, on_ends = buffer_rows(online)
     observations, data_actions = probe_states(offline, online, args.states)
@@ -177,7 +182,10 @@ def main(argv: list[str] | None = None) -> None:
 
     print(f"{'checkpoint':<40} |da| arm  |da| fingers  Q(a) - Q(a_start)  Q(a) - V   anchor share")
     for path in [args.start, *args.checkpoints]:
-        model = start if path == args.start else algorithm.load(path, device="cpu")
+        try:
+            model = start if path == args.start else algorithm.load(path, device="cpu")
+        except Exception as error:
+            raise SystemExit(f"error: {path}: {type(error).__name__}: {error}") from None
         model.policy.set_training_mode(False)
         actions = deterministic(model, observations)
         change = (actions - start_actions).abs()

@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).parents[2] / "benchmarks"))
 import offline_suite as suite  # noqa: E402
 
 from sb3_cql import CQL  # noqa: E402
+from sb3_cql.common import KeywordError  # noqa: E402
 
 
 def cql_keywords(text: str) -> dict:
@@ -35,7 +36,7 @@ def cql_keywords(text: str) -> dict:
         raise argparse.ArgumentTypeError(f"must be a JSON object, got {text!r}")
     try:
         CQL.refuse_unknown_keywords(keywords)
-    except Exception as error:
+    except KeywordError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
     return keywords
 
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     returns, successes = suite.evaluate(lambda o: model.predict(o, deterministic=True)[0], task.env_id, 20)
     score = float(np.mean(successes if task.scored_by == "success" else returns))
     record = {"score": score, "returns": [float(r) for r in returns], "successes": [bool(s) for s in successes]}
-    (args.out / "score.json").write_text(json.dumps(record))
+    suite.write_json(args.out / "score.json", record)  # whole or not at all
     print(f"{args.dataset}: {score:.3f}")
     return 0
 

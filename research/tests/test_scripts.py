@@ -722,3 +722,11 @@ def test_finetune_drift_refuses_a_missing_file_on_one_line(tmp_path):
     with pytest.raises(SystemExit) as exit_:
         load_script("finetune_drift").main([str(tmp_path / "a.zip"), str(tmp_path / "b.zip"), "--buffer", "c.pkl"])
     assert exit_.value.code == f"error: no file {tmp_path / 'a.zip'}"
+
+
+def test_finetune_drift_refuses_a_file_that_is_not_a_model_on_one_line(inputs, tmp_path):
+    (tmp_path / "a.zip").write_text("not a model")
+    with pytest.raises(SystemExit) as exit_:
+        load_script("finetune_drift").main([str(tmp_path / "a.zip"), str(inputs / "iql.zip"), "--buffer",
+                                            str(inputs / "finetuned_buffer.pkl")])  # fmt: skip
+    assert str(exit_.value.code).startswith("error: ") and "\n" not in str(exit_.value.code)
