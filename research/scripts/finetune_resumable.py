@@ -7,12 +7,15 @@ segment's ``<ENV>.zip``, copied to ``OUT/final.zip`` when the total is reached.
         --conf-file hyperparams/iql_finetune.yml --steps 100000 [--save-freq 10000] [--eval-freq 10000]
 
 A resumed segment starts the random streams afresh (as a zoo run with ``-i`` does), so a run killed and resumed is
-not the same, step for step, as one that was not.
+not the same, step for step, as one that was not. One run at a time holds OUT: a second start on the same OUT while
+the first runs is refused in one line (two would each count the other's segment as done).
 """
 
 from __future__ import annotations
 
 import argparse
+import fcntl
+import os
 import re
 import shutil
 import subprocess
@@ -47,6 +50,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.steps % args.save_freq:
         parser.error("--steps must be a multiple of --save-freq: a segment's steps are counted by its checkpoints")
+    args.out.mkdir(parents=True, exist_ok=True)
+    lock = open(args.out / ".lock", "w")  # noqa: SIM115 - held until the process ends
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        print(f"{args.out} is being fine-tuned by another process; wait for it or stop it first", file=sys.stderr)
+        return 2
     while True:
         done, start = 0, args.model
         for segment in sorted((args.out / args.algo).glob(f"{args.env}_*"), key=lambda path: int(path.name.rsplit("_")[-1])):
@@ -54,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
             if kept:
                 done, start = done + kept[-1][0], kept[-1][1]
         if done >= args.steps:
-            shutil.copyfile(start, args.out / "final.zip")
+            shutil.copyfile(start, args.out / "final.zip.tmp")
+            os.replace(args.out / "final.zip.tmp", args.out / "final.zip")
             print(f"{args.out}: {done} steps done; final model {args.out / 'final.zip'} ({start})", flush=True)
             return 0
         print(f"{args.out}: {done} steps done, {args.steps - done} left, from {start}", flush=True)

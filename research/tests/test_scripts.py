@@ -730,3 +730,26 @@ def test_finetune_drift_refuses_a_file_that_is_not_a_model_on_one_line(inputs, t
         load_script("finetune_drift").main([str(tmp_path / "a.zip"), str(inputs / "iql.zip"), "--buffer",
                                             str(inputs / "finetuned_buffer.pkl")])  # fmt: skip
     assert str(exit_.value.code).startswith("error: ") and "\n" not in str(exit_.value.code)
+
+
+def test_finetune_resumable_counts_segments_and_refuses_a_second_process_on_the_same_folder(tmp_path):
+    import fcntl
+
+    script = [sys.executable, "research/scripts/finetune_resumable.py", "model.zip", str(tmp_path), "--seed", "1",
+              "--steps", "30000"]  # fmt: skip
+    for segment, steps in (("PandaForce-v0_1", 20_000), ("PandaForce-v0_2", 10_000)):
+        folder = tmp_path / "iql" / segment
+        folder.mkdir(parents=True)
+        (folder / f"rl_model_{steps}_steps.zip").write_bytes(segment.encode())
+        (folder / f"rl_model_replay_buffer_{steps}_steps.pkl").write_bytes(b"")
+    (tmp_path / "iql" / "PandaForce-v0_2" / "rl_model_20000_steps.zip").write_bytes(b"no buffer beside it")
+    with open(tmp_path / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        held = subprocess.run(script, cwd=ROOT, capture_output=True, text=True)
+    assert held.returncode == 2 and held.stdout == ""
+    assert held.stderr.strip().splitlines() == [f"{tmp_path} is being fine-tuned by another process; wait for it or stop it first"]
+    assert not (tmp_path / "final.zip").exists()
+    done = subprocess.run(script, cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "30000 steps done; final model" in done.stdout
+    assert (tmp_path / "final.zip").read_bytes() == b"PandaForce-v0_2"
