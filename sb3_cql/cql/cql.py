@@ -46,18 +46,20 @@ class CQL(OfflineSAC):
     :param env: the environment (for its spaces, and the default evaluation env).
     :param dataset: a Minari dataset, its id (a missing standard one is collected first), or a filled
         ``ReplayBuffer``; ``None`` for an empty buffer of ``buffer_size``.
-    :param actor_learning_rate: the actor's learning rate; ``None`` for ``learning_rate`` (the critics', the entropy
-        coefficient's and the Lagrange multiplier's).
+    :param actor_learning_rate: the actor's learning rate; ``None`` for ``learning_rate`` (the critics' and the entropy
+        coefficient's).
     :param cql_alpha: weight of each critic's conservative gap against its full TD loss, as CORL's ``cql_alpha`` and
         d3rlpy's ``conservative_weight``; with ``cql_target_action_gap`` it is scaled by the learned ``alpha'``. ``0``
         drops the term (in either form) only: SAC's own update also needs ``cql_deterministic_backup=False``,
         ``actor_bc_weight=0`` and no reward shaping.
     :param cql_n_actions: actions sampled per state for each of the three log-sum-exp groups.
     :param cql_temperature: temperature ``T`` of the log-sum-exp.
-    :param cql_target_action_gap: learn the Lagrange multiplier ``alpha'`` (from 1, at the critics' learning rate) that
+    :param cql_target_action_gap: learn the Lagrange multiplier ``alpha'`` (from 1, at ``cql_alpha_learning_rate``) that
         eases the term while the gap is under this value and strengthens it above (d3rlpy's ``alpha_threshold``);
         ``None`` for a fixed weight ``cql_alpha``. Given to ``load``, either form continues a model saved with the
         other (a multiplier the save lacks starts at 1).
+    :param cql_alpha_learning_rate: Adam's learning rate for ``log(alpha')`` (d3rlpy's ``alpha_learning_rate``, 1e-4);
+        ``None`` for ``learning_rate``, the critics'.
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
     :param bc_steps: first gradient steps (counted across ``learn`` calls and ``save``/``load``) whose actor loss is
@@ -89,6 +91,7 @@ class CQL(OfflineSAC):
         cql_n_actions: int = 10,
         cql_temperature: float = 1.0,
         cql_target_action_gap: float | None = 10.0,
+        cql_alpha_learning_rate: float | None = None,
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
         bc_steps: int = 0,
@@ -100,6 +103,7 @@ class CQL(OfflineSAC):
         self.cql_n_actions = cql_n_actions
         self.cql_temperature = cql_temperature
         self.cql_target_action_gap = cql_target_action_gap
+        self.cql_alpha_learning_rate = cql_alpha_learning_rate
         self.cql_deterministic_backup = cql_deterministic_backup
         self.cql_max_backup = cql_max_backup
         self.bc_steps = bc_steps
@@ -121,6 +125,8 @@ class CQL(OfflineSAC):
             check_finite([("cql_target_action_gap", self.cql_target_action_gap)])
         if self.bc_learning_rate is not None:
             check_non_negative([("bc_learning_rate", self.bc_learning_rate)], strictly=True)
+        if self.cql_alpha_learning_rate is not None:
+            check_non_negative([("cql_alpha_learning_rate", self.cql_alpha_learning_rate)], strictly=True)
 
     def _setup_model(self) -> None:
         super()._setup_model()
@@ -128,7 +134,7 @@ class CQL(OfflineSAC):
         # loads with ``cql_target_action_gap=None`` (SB3's load sets the saved tensor's data in place).
         self.log_alpha_prime = th.zeros(1, device=self.device, requires_grad=True)
         if self.cql_target_action_gap is not None:
-            self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self.lr_schedule(1))
+            self.alpha_prime_optimizer = th.optim.Adam([self.log_alpha_prime], lr=self._alpha_prime_learning_rate())
 
     def _fill_from_dataset(self, dataset: MinariDataset | str | ReplayBuffer) -> None:
         """The offline base's, then a warning where the settings are ones seen to fail on data like these
@@ -163,6 +169,8 @@ class CQL(OfflineSAC):
         optimizers = [self.critic.optimizer]
         optimizers += [opt for opt in (self.ent_coef_optimizer, self.alpha_prime_optimizer) if opt is not None]
         self._update_learning_rate(optimizers)
+        if self.alpha_prime_optimizer is not None:
+            update_learning_rate(self.alpha_prime_optimizer, self._alpha_prime_learning_rate())
         actor_learning_rate = self._actor_learning_rate()
         update_learning_rate(self.actor.optimizer, actor_learning_rate)
         self.logger.record("train/actor_learning_rate", actor_learning_rate)
@@ -426,6 +434,12 @@ class CQL(OfflineSAC):
         """Whether the next gradient step is one of the first ``bc_steps``, counted in ``_n_updates`` (saved with the
         model), not ``num_timesteps``, which RL-Zoo3 restarts at 0 when it continues a model."""
         return self._n_updates < self.bc_steps
+
+    def _alpha_prime_learning_rate(self) -> float:
+        """``cql_alpha_learning_rate``, or where it is ``None`` the critics' schedule at the current progress."""
+        if self.cql_alpha_learning_rate is not None:
+            return self.cql_alpha_learning_rate
+        return self.lr_schedule(getattr(self, "_current_progress_remaining", 1.0))
 
     def _actor_learning_rate(self) -> float:
         """The actor's schedule, or during the warm start the linear decay from ``bc_learning_rate`` to it."""
