@@ -206,11 +206,13 @@ def test_the_anchor_divides_sacs_whole_actor_loss_by_mean_abs_q():
     assert model.anchor_actor_loss(actor_loss, min_qf_pi, mean_actions, replay_data, logs={}) is actor_loss
 
 
-@pytest.mark.parametrize(("options", "step"), [({}, 3e-4), ({"cql_alpha_learning_rate": 1e-4}, 1e-4),
-                                               ({"learning_rate": 1e-3, "cql_alpha_learning_rate": 2e-5}, 2e-5)])  # fmt: skip
+@pytest.mark.parametrize(("options", "step"), [({}, 1e-4), ({"cql_alpha_learning_rate": None}, 3e-4),
+                                               ({"learning_rate": 1e-3, "cql_alpha_learning_rate": 2e-5}, 2e-5),
+                                               ({"learning_rate": 1e-3, "cql_alpha_learning_rate": None}, 1e-3)])  # fmt: skip
 def test_the_multipliers_learning_rate_is_its_own_keyword_or_the_critics(options, step, tmp_path):
-    """Adam's first step moves ``log(alpha')`` by its learning rate: ``cql_alpha_learning_rate`` where given (through
-    ``train``, whose schedule update sets the other optimizers), else ``learning_rate``; a loaded model keeps it."""
+    """Adam's first step moves ``log(alpha')`` by its learning rate: ``cql_alpha_learning_rate`` (1e-4 by default;
+    kept through ``train``, whose schedule update sets the other optimizers), or ``learning_rate`` where it is
+    ``None``; a loaded model keeps it."""
     model = CQL("MlpPolicy", "Pendulum-v1", dataset=pendulum_buffer(200), batch_size=BATCH, policy_kwargs=TINY, seed=0,
                 **options)  # fmt: skip
     model.set_logger(Logger(None, []))

@@ -39,18 +39,19 @@ def mixture() -> tuple[gym.Env, ReplayBuffer]:
 
 @pytest.mark.parametrize("target, eased", [(10.0, True), (0.0, False)])
 def test_cql_learns_its_conservative_weight_easing_it_while_the_gap_is_under_the_target(mixture, target, eased):
-    """At the defaults (``cql_alpha`` 5, ``cql_target_action_gap`` 10) the Lagrange multiplier ``alpha'`` starts at 1
-    and falls while the critics' log-sum-exp gap stays under the target; with a target of 0 the same gap drives it
+    """At the defaults (``cql_alpha`` 5, ``cql_target_action_gap`` 10, the multiplier's rate 1e-4) the Lagrange
+    multiplier ``alpha'`` starts at 1 and falls while the critics' log-sum-exp gap stays under the target; with a target of 0 the same gap drives it
     up: the weight is learned from the data, not fixed."""
     env, buffer = mixture
     model = CQL("MlpPolicy", env, dataset=buffer, batch_size=64, policy_kwargs=TINY, seed=0,
                 **({} if target == 10.0 else {"cql_target_action_gap": target}))  # fmt: skip
-    assert (model.cql_alpha, model.cql_target_action_gap) == (5.0, target)
+    assert (model.cql_alpha, model.cql_target_action_gap, model.cql_alpha_learning_rate) == (5.0, target, 1e-4)
     assert model.alpha_prime().item() == pytest.approx(1.0)
     model.learn(100)
     gap = model.logger.name_to_value["train/cql_gap"]
     assert 0.0 < gap < 10.0
-    assert (model.alpha_prime().item() < 0.99) if eased else (model.alpha_prime().item() > 1.01)
+    # Adam moves log(alpha') by at most about its rate, 1e-4, a step: 0.01 in 100 steps
+    assert (0.989 < model.alpha_prime().item() < 0.995) if eased else (1.005 < model.alpha_prime().item() < 1.011)
 
 
 def test_a_fixed_weight_is_one_keyword_away_and_learns_no_multiplier(mixture):

@@ -37,8 +37,9 @@ class CQL(OfflineSAC):
     ``cql_temperature``. With ``cql_target_action_gap`` the term is ``alpha' * cql_alpha * (gap -
     cql_target_action_gap)``, ``alpha'`` learned by dual gradient ascent (tinkoff-ai/CORL's form). Everything else is
     the offline base's (:class:`~sb3_cql.common.OfflineSAC`). The defaults learn the weight (``cql_alpha`` 5 towards a
-    gap of 10, d3rlpy's ``CQLConfig``'s); the rest are tinkoff-ai/CORL's ``cql.py``'s. They were chosen across the data
-    sets of ``benchmarks/offline_suite.py``, where the fixed weight of 10 failed a sparse task's mixed data; the
+    gap of 10, the multiplier at a rate of 1e-4: d3rlpy's ``CQLConfig``'s); the rest are tinkoff-ai/CORL's ``cql.py``'s.
+    They were chosen across the data sets of ``benchmarks/offline_suite.py``, where the fixed weight of 10 failed a
+    sparse task's mixed data and a multiplier at the critics' rate a dense one's; the
     thesis's grasping settings, a fixed weight among them, are in ``hyperparams/cql.yml``.
 
     :param policy: ``"MlpPolicy"``, ``"CnnPolicy"`` or ``"MultiInputPolicy"`` (SAC's, with CQL's actor and critic
@@ -58,8 +59,10 @@ class CQL(OfflineSAC):
         eases the term while the gap is under this value and strengthens it above (d3rlpy's ``alpha_threshold``);
         ``None`` for a fixed weight ``cql_alpha``. Given to ``load``, either form continues a model saved with the
         other (a multiplier the save lacks starts at 1).
-    :param cql_alpha_learning_rate: Adam's learning rate for ``log(alpha')`` (d3rlpy's ``alpha_learning_rate``, 1e-4);
-        ``None`` for ``learning_rate``, the critics'.
+    :param cql_alpha_learning_rate: Adam's learning rate for ``log(alpha')`` (d3rlpy's ``alpha_learning_rate``): at
+        1e-4 the weight eases at most to about e^-1 of its start in 10,000 steps; ``None`` for ``learning_rate``, the
+        critics' (CORL's, and the default until 2026-12-07, which eased too far on a dense mixture of good episodes and
+        noise).
     :param cql_deterministic_backup: drop the entropy term from the TD target (as d3rlpy and the CQL paper's code).
     :param cql_max_backup: back up the max over ``cql_n_actions`` next-state policy actions instead of one sample.
     :param bc_steps: first gradient steps (counted across ``learn`` calls and ``save``/``load``) whose actor loss is
@@ -91,7 +94,7 @@ class CQL(OfflineSAC):
         cql_n_actions: int = 10,
         cql_temperature: float = 1.0,
         cql_target_action_gap: float | None = 10.0,
-        cql_alpha_learning_rate: float | None = None,
+        cql_alpha_learning_rate: float | None = 1e-4,
         cql_deterministic_backup: bool = True,
         cql_max_backup: bool = False,
         bc_steps: int = 0,
