@@ -170,7 +170,7 @@ class CQL(OfflineSAC):
         and the sampled actions."""
         self.policy.set_training_mode(True)
         optimizers = [self.critic.optimizer]
-        optimizers += [opt for opt in (self.ent_coef_optimizer, self.alpha_prime_optimizer) if opt is not None]
+        optimizers += [self.ent_coef_optimizer] if self.ent_coef_optimizer is not None else []
         self._update_learning_rate(optimizers)
         if self.alpha_prime_optimizer is not None:
             update_learning_rate(self.alpha_prime_optimizer, self._alpha_prime_learning_rate())
@@ -442,7 +442,7 @@ class CQL(OfflineSAC):
         """``cql_alpha_learning_rate``, or where it is ``None`` the critics' schedule at the current progress."""
         if self.cql_alpha_learning_rate is not None:
             return self.cql_alpha_learning_rate
-        return self.lr_schedule(getattr(self, "_current_progress_remaining", 1.0))
+        return self.lr_schedule(self._current_progress_remaining)
 
     def _actor_learning_rate(self) -> float:
         """The actor's schedule, or during the warm start the linear decay from ``bc_learning_rate`` to it."""
