@@ -437,6 +437,11 @@ def main(argv: list[str] | None = None) -> int:
     lane, _, lanes = args.lane.partition("/")
     if not (lane.isdigit() and lanes.isdigit() and int(lane) < int(lanes)):
         parser.error(f"--lane {args.lane!r}: I/N with 0 <= I < N expected, e.g. 0/2")
+    for env_id in sorted({task_of(name).env_id for name in args.datasets}):  # a missing simulator: one line, up front
+        try:
+            gym.make(env_id).close()
+        except gym.error.DependencyNotInstalled as error:
+            parser.error(f"--datasets: {env_id} cannot be made here: {error}")
     libraries = [name for name in args.libraries if name == "sb3-cql" or args.d3rlpy_python]
     if args.variant:
         libraries = ["sb3-cql"]

@@ -2,6 +2,7 @@
 record a run scored against its own data, resumes by run, and refuses a bad variant on one line."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -89,3 +90,17 @@ def test_the_minari_source_trains_ours_on_the_same_data_as_the_buffer(out):
         minari_state, buffer_state = from_minari.policy.state_dict(), from_buffer.policy.state_dict()
         assert minari_state.keys() == buffer_state.keys()
         assert all(th.equal(minari_state[key], buffer_state[key]) for key in minari_state)
+
+
+def test_a_task_whose_simulator_is_missing_is_refused_on_one_line_before_any_run(tmp_path):
+    shadow = tmp_path / "shadow" / "Box2D"  # Box2D as an interpreter without it meets it: its import fails
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text("raise ImportError('No module named Box2D')\n")
+    finished = subprocess.run([sys.executable, str(SUITE), str(tmp_path / "out"), "--datasets", "lunar-noisy",
+                               "--algorithms", "bc", "--steps", "5", "--eval-episodes", "1", "--seeds", "0"],
+                              capture_output=True, text=True, timeout=600,
+                              env={**os.environ, "PYTHONPATH": str(shadow.parent)})  # fmt: skip
+    assert finished.returncode == 2
+    errors = [line for line in finished.stderr.splitlines() if line.startswith("offline_suite.py: error:")]
+    assert len(errors) == 1 and "LunarLanderContinuous-v3" in errors[0] and "box2d" in errors[0].lower()
+    assert "Traceback" not in finished.stderr and not (tmp_path / "out" / "data").exists()
