@@ -37,7 +37,8 @@ constructor keyword at its default, or at the defaults changed by ``--variant LA
 ``raw='{"normalize_observations": false}'``, recorded under the label). d3rlpy's (``CQLConfig()``, ``IQLConfig()``,
 ``BCConfig()``) train from an ``MDPDataset`` of the same arrays with their defaults, plus the ``MinMaxActionScaler`` of
 the env's action bounds that their tanh policies need, in the interpreter given by ``--d3rlpy-python`` (d3rlpy pins
-gymnasium 1.0.0: ``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy==2.8.1``); their policy comes back as
+gymnasium 1.0.0: ``python -m venv V && V/bin/pip install torch==2.13.0 d3rlpy==2.8.1``, and for ``--source minari`` also
+``"minari[hdf5]==0.5.4" pillow``); their policy comes back as
 TorchScript (with its scalers) and acts here, so both libraries meet the same env and the same evaluation: the last
 policy's deterministic action in ``--eval-episodes`` episodes on env seeds 10000 onwards (the data's are 0 onwards).
 
@@ -354,7 +355,11 @@ def run_d3rlpy(algorithm: str, name: str, seed: int, args: argparse.Namespace) -
         environment = {**os.environ, "MINARI_DATASETS_PATH": str(args.out / "minari")}
         finished = subprocess.run(command, capture_output=True, text=True, env=environment)
         if finished.returncode:
-            raise RuntimeError(f"d3rlpy's {algorithm} failed:\n{finished.stderr[-2000:]}")
+            log = args.out / "logs" / f"{run_name(name, 'd3rlpy', algorithm, None, seed)}.log"
+            write_text(log, finished.stderr)
+            last = (finished.stderr.strip().splitlines() or ["no message"])[-1]
+            raise RunFailed(f"d3rlpy's {algorithm} on {name}, seed {seed}, failed in {args.d3rlpy_python}: {last} "
+                            f"(its whole stderr: {log})")  # fmt: skip
         result = json.loads(finished.stdout.strip().splitlines()[-1])
         policy = th.jit.load(str(policy_path))
 
@@ -370,11 +375,32 @@ def run_name(dataset: str, library: str, algorithm: str, label: str | None, seed
     return f"{dataset}-{library}-{algorithm}{f'-{label}' if label else ''}-seed{seed}"
 
 
+class RunFailed(Exception):
+    """A run that could not finish, with the one line that says why."""
+
+
 def write_json(path: Path, record: dict) -> None:
+    write_text(path, json.dumps(record))
+
+
+def write_text(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".json", delete=False) as file:
-        json.dump(record, file)
+    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=path.suffix, delete=False) as file:
+        file.write(text)
     os.replace(file.name, path)
+
+
+def d3rlpy_import_error(python: str, minari: bool) -> str | None:
+    """Why ``python`` cannot run d3rlpy's side of the suite (d3rlpy, and with the Minari source Minari's HDF5 storage),
+    or ``None``."""
+    imports = "import d3rlpy" + ("; import minari.dataset._storages.hdf5_storage" if minari else "")
+    try:
+        finished = subprocess.run([python, "-c", imports], capture_output=True, text=True)
+    except OSError as error:
+        return f"{python} cannot be run ({error.strerror})"
+    if finished.returncode:
+        return f"{python}: {(finished.stderr.strip().splitlines() or ['no message'])[-1]}"
+    return None
 
 
 def table(out: Path) -> str:
@@ -445,6 +471,8 @@ def main(argv: list[str] | None = None) -> int:
     libraries = [name for name in args.libraries if name == "sb3-cql" or args.d3rlpy_python]
     if args.variant:
         libraries = ["sb3-cql"]
+    if "d3rlpy" in libraries and (error := d3rlpy_import_error(args.d3rlpy_python, args.source == "minari")):
+        parser.error(f"--d3rlpy-python {error} (it needs torch==2.13.0 d3rlpy==2.8.1 \"minari[hdf5]==0.5.4\" pillow)")
     if args.source == "minari":  # a row of its own: the label names the source
         label = f"{label}+minari" if label else "minari"
     sys.stdout.reconfigure(line_buffering=True)
@@ -462,7 +490,11 @@ def main(argv: list[str] | None = None) -> int:
             result = run_ours(algorithm, dataset, data, seed, keywords, args)
             result.pop("model").save(args.out / "models" / f"{path.stem}.zip")  # whole or not at all, as ours save
         else:
-            result = run_d3rlpy(algorithm, dataset, seed, args)
+            try:
+                result = run_d3rlpy(algorithm, dataset, seed, args)
+            except RunFailed as error:
+                print(f"offline_suite.py: error: {error}", file=sys.stderr)
+                return 1
         scored = result["successes"] if task_of(dataset).scored_by == "success" else result["returns"]
         record = {"dataset": dataset, "library": library, "algorithm": algorithm, "label": label, "keywords": keywords,
                   "source": args.source,

@@ -104,3 +104,38 @@ def test_a_task_whose_simulator_is_missing_is_refused_on_one_line_before_any_run
     errors = [line for line in finished.stderr.splitlines() if line.startswith("offline_suite.py: error:")]
     assert len(errors) == 1 and "LunarLanderContinuous-v3" in errors[0] and "box2d" in errors[0].lower()
     assert "Traceback" not in finished.stderr and not (tmp_path / "out" / "data").exists()
+
+
+def interpreter_with(tmp_path: Path, d3rlpy_source: str) -> str:
+    """This interpreter with a ``d3rlpy`` package of ``d3rlpy_source`` in front of any installed one."""
+    shadow = tmp_path / "shadow" / "d3rlpy"
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text(d3rlpy_source)
+    wrapper = tmp_path / "python"
+    wrapper.write_text(f'#!/bin/sh\nPYTHONPATH="{shadow.parent}" exec "{sys.executable}" "$@"\n')
+    wrapper.chmod(0o755)
+    return str(wrapper)
+
+
+@pytest.mark.parametrize("case", ["no interpreter", "no d3rlpy"])
+def test_a_d3rlpy_interpreter_that_cannot_run_it_is_refused_on_one_line_before_any_run(tmp_path, case):
+    python = str(tmp_path / "none" / "python")
+    if case == "no d3rlpy":
+        python = interpreter_with(tmp_path, "raise ImportError('No module named d3rlpy')\n")
+    finished = suite(str(tmp_path / "out"), *TINY, "--d3rlpy-python", python)
+    assert finished.returncode == 2
+    errors = [line for line in finished.stderr.splitlines() if line.startswith("offline_suite.py: error:")]
+    assert len(errors) == 1 and "--d3rlpy-python" in errors[0] and "d3rlpy==2.8.1" in errors[0]
+    assert "Traceback" not in finished.stderr and not (tmp_path / "out" / "runs").exists()
+
+
+def test_a_d3rlpy_run_that_fails_ends_on_one_line_with_its_log_kept_and_no_record(tmp_path):
+    python = interpreter_with(tmp_path, "")  # imports, and has none of d3rlpy's algorithms
+    out = tmp_path / "out"
+    finished = suite(str(out), *TINY, "--libraries", "d3rlpy", "--d3rlpy-python", python)
+    assert finished.returncode == 1
+    errors = [line for line in finished.stderr.splitlines() if line.startswith("offline_suite.py: error:")]
+    assert len(errors) == 1 and "d3rlpy's bc on mountaincar-weak, seed 0, failed" in errors[0]
+    assert "Traceback" not in finished.stderr and not (out / "runs").exists()
+    log = out / "logs" / "mountaincar-weak-d3rlpy-bc-seed0.log"
+    assert "Traceback" in log.read_text() and str(log) in errors[0]
