@@ -2,7 +2,7 @@
 
     python benchmarks/offline_suite.py OUT [--d3rlpy-python V/bin/python] [--datasets NAME ...] [--seeds 0 1]
         [--algorithms cql iql bc] [--libraries sb3-cql d3rlpy] [--steps 10000] [--eval-episodes 20]
-        [--variant LABEL=JSON] [--source buffer|minari] [--lane I/N] [--threads 1] [--table]
+        [--variant LABEL=JSON] [--source buffer|minari] [--lane I/N] [--threads 1] [--table [--per-seed]]
 
 The data sets, made here by seeded scripts in seconds (the online learner's in a few minutes) and kept in
 ``OUT/data/NAME.npz``, are the same arrays for both libraries, and each run is scored against its own data:
@@ -403,8 +403,9 @@ def d3rlpy_import_error(python: str, minari: bool) -> str | None:
     return None
 
 
-def table(out: Path) -> str:
-    """Mean (and range) over seeds of every row in ``OUT/runs``, a column per data set."""
+def table(out: Path, per_seed: bool = False) -> str:
+    """Mean (and range) over seeds of every row in ``OUT/runs``, a column per data set; with ``per_seed`` each seed's
+    score instead, in the order of the data set's seeds (``0.50 / 0.55``, a dash for a seed the row lacks)."""
     records = [json.loads(path.read_text()) for path in sorted((out / "runs").glob("*.json"))]
     datasets = [name for name in DATASETS if any(r["dataset"] == name for r in records)]
     rows = sorted({(r["library"], r["algorithm"], r.get("label") or "") for r in records})
@@ -416,7 +417,15 @@ def table(out: Path) -> str:
         for dataset in datasets:
             mine = [r["score"] for r in records if (r["dataset"], r["library"], r["algorithm"], r.get("label") or "")
                     == (dataset, library, algorithm, label)]  # fmt: skip
-            cells.append(f"{np.mean(mine):.2f} ({min(mine):.2f}..{max(mine):.2f}, {len(mine)})" if mine else "")
+            if per_seed:  # a dash where a seed another row of the data set has is missing
+                digits = 2 if task_of(dataset).scored_by == "success" else 1
+                by_seed = {r["seed"]: r["score"] for r in records if (r["dataset"], r["library"], r["algorithm"],
+                           r.get("label") or "") == (dataset, library, algorithm, label)}  # fmt: skip
+                seeds = sorted({r["seed"] for r in records if r["dataset"] == dataset})
+                scores = [f"{by_seed[seed]:.{digits}f}" if seed in by_seed else "-" for seed in seeds]
+                cells.append(" / ".join(scores) if by_seed else "")
+            else:
+                cells.append(f"{np.mean(mine):.2f} ({min(mine):.2f}..{max(mine):.2f}, {len(mine)})" if mine else "")
         name = f"{'our' if library == 'sb3-cql' else 'd3rlpy'} {algorithm.upper()}{f' {label}' if label else ''}"
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -438,9 +447,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--source", choices=["buffer", "minari"], default="buffer",
                         help="the data as an SB3 ReplayBuffer (default) or a Minari dataset, for both libraries")  # fmt: skip
     parser.add_argument("--table", action="store_true", help="print the table of the runs in OUT and stop")
+    parser.add_argument("--per-seed", action="store_true", help="with --table, each seed's score, not their mean")
     args = parser.parse_args(argv)
+    if args.per_seed and not args.table:
+        parser.error("--per-seed: a form of --table, given without it")
     if args.table:
-        print(table(args.out))
+        print(table(args.out, per_seed=args.per_seed))
         return 0
     label, keywords = None, {}
     if args.variant:

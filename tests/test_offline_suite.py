@@ -139,3 +139,16 @@ def test_a_d3rlpy_run_that_fails_ends_on_one_line_with_its_log_kept_and_no_recor
     assert "Traceback" not in finished.stderr and not (out / "runs").exists()
     log = out / "logs" / "mountaincar-weak-d3rlpy-bc-seed0.log"
     assert "Traceback" in log.read_text() and str(log) in errors[0]
+
+
+def test_the_per_seed_table_gives_each_seed_its_place_and_a_dash_where_a_row_lacks_it(out, tmp_path):
+    (tmp_path / "runs").mkdir()
+    for path in (out / "runs").glob("*.json"):
+        (tmp_path / "runs" / path.name).write_text(path.read_text())
+    record = json.loads((out / "runs" / "mountaincar-weak-sb3-cql-iql-seed0.json").read_text())
+    (tmp_path / "runs" / "mountaincar-weak-sb3-cql-iql-seed1.json").write_text(json.dumps({**record, "seed": 1}))
+    rows = {line.split(" | ")[0]: line for line in suite(str(tmp_path), "--table", "--per-seed").stdout.splitlines()}
+    iql = record["score"]
+    assert rows["| our IQL"] == f"| our IQL | {iql:.2f} / {iql:.2f} |"
+    assert rows["| our BC"].endswith(" / - |")
+    assert suite(str(tmp_path), "--per-seed").returncode == 2
