@@ -41,6 +41,9 @@ def test_each_run_is_one_record_scored_against_its_own_data(out):
         assert record["data"] == pytest.approx(success) and episodes == 100
         assert len(record["successes"]) == len(record["returns"]) == 1
         assert record["score"] == pytest.approx(np.mean(record["successes"]))  # a sparse task: scored by success
+    umask = os.umask(0)
+    os.umask(umask)
+    assert {(out / "runs" / name).stat().st_mode & 0o777 for name in runs} == {0o666 & ~umask}  # as any file written
 
 
 def test_each_model_is_kept_beside_its_record_and_loads_with_its_class(out):
