@@ -487,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.variant:
         libraries = ["sb3-cql"]
     if "d3rlpy" in libraries and (error := d3rlpy_import_error(args.d3rlpy_python, args.source == "minari")):
-        parser.error(f"--d3rlpy-python {error} (it needs torch==2.13.0 d3rlpy==2.8.1 \"minari[hdf5]==0.5.4\" pillow)")
+        parser.error(f'--d3rlpy-python {error} (it needs torch==2.13.0 d3rlpy==2.8.1 "minari[hdf5]==0.5.4" pillow)')
     if args.source == "minari":  # a row of its own: the label names the source
         label = f"{label}+minari" if label else "minari"
     sys.stdout.reconfigure(line_buffering=True)

@@ -21,6 +21,7 @@ from sb3_cql.data import (
     DEFAULT_NOISE,
     CollectionSpec,
     DatasetError,
+    arrays_digest,
     collect_dataset,
     dataset_path,
     ensure_dataset,
@@ -72,6 +73,13 @@ def test_collection_does_not_depend_on_the_number_of_workers():
     one = collect_dataset(spec, "sb3cql/Panda-v0/one-v0", workers=1, progress_bar=False)
     two = collect_dataset(spec, "sb3cql/Panda-v0/two-v0", workers=2, progress_bar=False)
     assert_same_data(one, two)
+    # the digest of the arrays in each one's metadata says so, and is the digest of the arrays read back
+    assert one.storage.metadata["arrays_sha256"] == two.storage.metadata["arrays_sha256"] == arrays_digest(two)
+    other = collect_dataset(dataclasses.replace(spec, seed=6), "sb3cql/Panda-v0/other-v0", progress_bar=False)
+    assert arrays_digest(other) == other.storage.metadata["arrays_sha256"] != arrays_digest(one)
+    packages = json.loads(one.storage.metadata["packages"])
+    assert packages["numpy"] == np.__version__ and packages["gymnasium"] == gym.__version__
+    assert packages["minari"] == minari.__version__ and packages["pybullet"]
 
 
 def test_noisy_policy_records_executed_and_clean_actions():

@@ -3,6 +3,7 @@
 One role a module, each importing only those below it:
 
 - :mod:`~sb3_cql.data.errors`: :class:`DatasetError`, the package's error;
+- :mod:`~sb3_cql.data.digest`: a dataset's arrays as one SHA-256 (:func:`arrays_digest`);
 - :mod:`~sb3_cql.data.ids`: dataset ids and paths, and the behaviour policies' names;
 - :mod:`~sb3_cql.data.store`: a dataset on disk (its files and lock, recovery, publication) and its loading;
 - :mod:`~sb3_cql.data.spaces`: whether a dataset or a model fits an env (:func:`check_spaces`);
@@ -19,6 +20,7 @@ as do the policy names (read from the tasks), so that loading a dataset, and the
 simulator.
 """
 
+from sb3_cql.data.digest import arrays_digest
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.ids import DEFAULT_NOISE, NAMESPACE, dataset_id, dataset_path
 from sb3_cql.data.loading import fill_replay_buffer, load_replay_buffer, resolve_dataset
@@ -47,6 +49,7 @@ __all__ = [
     "POLICIES",
     "CollectionSpec",
     "DatasetError",
+    "arrays_digest",
     "check_spaces",
     "collect_dataset",
     "dataset_id",

@@ -3,6 +3,8 @@ or other datasets (:func:`mix_datasets`)."""
 
 from __future__ import annotations
 
+import hashlib
+import importlib.metadata
 import json
 import os
 import shutil
@@ -18,6 +20,7 @@ from minari.dataset.minari_storage import MinariStorage
 from minari.utils import validate_datasets_to_combine
 
 import envs
+from sb3_cql.data.digest import update_digest
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.estimates import BYTES_PER_EPISODE, check_space
 from sb3_cql.data.ids import POLICIES
@@ -39,14 +42,16 @@ def assemble(files: DatasetFiles, env: gym.Env, metadata: Callable[[list[bool]],
     # With the spaces given, Minari makes no env of its own (whose PyBullet __del__ could drop a Ctrl-C).
     storage = MinariStorage.new(files.assembling / "data", env.observation_space, env.action_space, env.spec,
                                 data_format="hdf5")  # fmt: skip
-    successes = []
+    successes, digest = [], hashlib.sha256()
     try:
         for _, path in episode_files:
             episodes = files.read_episodes(path)
             storage.update_episodes(episodes)
             successes += [bool(episode.rewards[-1] > 0) for episode in episodes]
+            for episode in episodes:
+                update_digest(digest, episode)
             crash_point("assemble")
-        storage.update_metadata(metadata(successes))
+        storage.update_metadata({**metadata(successes), "arrays_sha256": digest.hexdigest()})
     except OSError as error:
         shutil.rmtree(files.assembling, ignore_errors=True)
         raise DatasetError(
@@ -55,6 +60,21 @@ def assemble(files: DatasetFiles, env: gym.Env, metadata: Callable[[list[bool]],
         ) from None
     os.replace(files.assembling, files.assembled)
     crash_point("assembled")
+
+
+#: The packages whose versions can change what a collection writes, recorded in its metadata (``packages``).
+COLLECTION_PACKAGES = ("sb3-cql", "numpy", "gymnasium", "pybullet", "torch", "stable-baselines3", "minari")
+
+
+def package_versions() -> str:
+    """The installed versions of :data:`COLLECTION_PACKAGES`, as JSON (``null`` for one not installed)."""
+    versions = {}
+    for name in COLLECTION_PACKAGES:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = None
+    return json.dumps(versions)
 
 
 def collection_metadata(dataset_id: str, spec: CollectionSpec, successes: list[bool], env: gym.Env) -> dict[str, Any]:
@@ -77,6 +97,7 @@ def collection_metadata(dataset_id: str, spec: CollectionSpec, successes: list[b
         "env_kwargs": json.dumps({**unwrapped.config.to_kwargs(), "action_mode": unwrapped.action_mode}),
         "collection": spec.to_json(),
         "success_rate": float(np.mean(successes)),
+        "packages": package_versions(),
     }
     if spec.controller is not None:
         controller = envs.PDController.for_env(env, **envs.CONTROLLERS[spec.controller])
