@@ -418,12 +418,11 @@ def table(out: Path, per_seed: bool = False) -> str:
     for library, algorithm, label in rows:
         cells = []
         for dataset in datasets:
-            mine = [r["score"] for r in records if (r["dataset"], r["library"], r["algorithm"], r.get("label") or "")
-                    == (dataset, library, algorithm, label)]  # fmt: skip
+            by_seed = {r["seed"]: r["score"] for r in records if (r["dataset"], r["library"], r["algorithm"],
+                       r.get("label") or "") == (dataset, library, algorithm, label)}  # fmt: skip
+            mine = list(by_seed.values())
             if per_seed:  # a dash where a seed another row of the data set has is missing
                 digits = 2 if task_of(dataset).scored_by == "success" else 1
-                by_seed = {r["seed"]: r["score"] for r in records if (r["dataset"], r["library"], r["algorithm"],
-                           r.get("label") or "") == (dataset, library, algorithm, label)}  # fmt: skip
                 seeds = sorted({r["seed"] for r in records if r["dataset"] == dataset})
                 scores = [f"{by_seed[seed]:.{digits}f}" if seed in by_seed else "-" for seed in seeds]
                 cells.append(" / ".join(scores) if by_seed else "")
