@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_cql import CQL, IQL, CalQL
+from sb3_cql import IQL, CalQL
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = np.load(ROOT / "tests" / "data" / "model_actions.npz")
 MODELS = {
     "finetune-PandaForce-v0-seed1": CalQL,
-    "finetune-chunked-PandaForce-v0-seed1": CQL,
+    "finetune-iql-PandaForce-v0-seed1": IQL,
     "offline-yaw-PandaForce-v0-iql-seed1": IQL,
 }
 

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 import envs  # noqa: F401  (registers the tasks)
-from sb3_cql import CQL, IQL, CalQL
+from sb3_cql import IQL, CalQL
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
@@ -30,13 +30,13 @@ def test_the_committed_models_fit_in_the_repository():
 
 def record_of(path: Path) -> tuple[str, dict]:
     """The task and record of a committed model: ``finetune-<task>-seed<N>.zip`` is the protocol's fine-tuning stage
-    (its record in ``results/finetune-<task>/records``), ``finetune-chunked-<task>-seed<N>.zip`` a chunked zoo
-    fine-tuning (its record in ``research/studies/finetune-chunked/runs/seed<N>``)."""
+    (its record in ``results/finetune-<task>/records``), ``finetune-iql-<task>-seed<N>.zip`` the zoo's fine-tuning of
+    the random-yaw IQL model (its record in ``research/studies/finetune-iql/short-seed<N>``)."""
     name, seed = path.stem.rsplit("-", 1)
     task = name.removeprefix("finetune-")
-    if task.startswith("chunked-"):
-        task = task.removeprefix("chunked-")
-        return task, json.loads((STUDIES_DIR / "finetune-chunked" / "runs" / seed / "record.json").read_text())
+    if task.startswith("iql-"):
+        study = STUDIES_DIR / "finetune-iql" / f"short-{seed}"
+        return task.removeprefix("iql-"), json.loads((study / "record.json").read_text())
     return task, json.loads(
         (RESULTS / f"finetune-{task}" / "records" / "train" / f"cql-finetune-{task}-{seed}.json").read_text()
     )
@@ -45,17 +45,36 @@ def record_of(path: Path) -> tuple[str, dict]:
 @pytest.mark.parametrize("path", FINETUNED, ids=lambda path: path.stem)
 def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
     task, record = record_of(path)
-    # The protocol's fine-tuning was calibrated (Cal-QL); chunks cannot be.
-    algorithm = CQL if record.get("action_chunk", 1) > 1 else CalQL
+    # The protocol's fine-tuning was calibrated (Cal-QL); the zoo's from the random-yaw model is IQL's.
+    algorithm = IQL if "conf_file" in record else CalQL
     model = algorithm.load(path)
     assert type(model) is algorithm and model.num_timesteps == record["training_steps"]
-    assert model.action_chunk == record.get("action_chunk", 1)
     env = gym.make(task, **record["env_kwargs"])
     observation, _ = env.reset(seed=0)
     action, _ = model.predict(observation, deterministic=True)
     assert env.action_space.contains(action.astype(env.action_space.dtype))
     np.testing.assert_array_equal(model.predict(observation, deterministic=True)[0], action)
     env.close()
+
+
+def test_the_committed_iql_fine_tuned_model_was_trained_by_its_zoo_configuration():
+    """Every fine-tuning keyword of the shipped configuration is the model's, its evaluation record beside it covers
+    100 episodes of each task, and it started from the committed random-yaw model."""
+    path = RESULTS / "models" / "finetune-iql-PandaForce-v0-seed1.zip"
+    task, record = record_of(path)
+    config = yaml.safe_load((ROOT / record["conf_file"]).read_text())[task]
+    model = IQL.load(path)
+    for key in ("online_fraction", "online_buffer_size", "learning_starts", "train_freq", "gradient_steps",
+                "deterministic_rollouts"):  # fmt: skip
+        value = model.train_freq.frequency if key == "train_freq" else getattr(model, key)
+        assert value == config[key], key
+    assert record["env_kwargs"] == config["env_kwargs"]
+    assert (ROOT / record["started_from"]).is_file() and f"-i {record['started_from']}" in record["command"]
+    assert f"-n {record['training_steps']}" in record["command"] and f"--seed {record['seed']}" in record["command"]
+    evaluation = json.loads((STUDIES_DIR / "finetune-iql" / f"short-seed{record['seed']}" / "final-eval.json").read_text())
+    assert {name: len(task_record["episodes"]) for name, task_record in evaluation["tasks"].items()} == {
+        "PandaForce-v0": 100, "Panda-v0": 100, "PandaPerturbed-v0": 100,
+    }  # fmt: skip
 
 
 #: The row of ``research/studies/offline-yaw`` whose final model an ``offline-yaw-<task>-<algo>-seed<N>.zip`` is, its
