@@ -2,6 +2,8 @@
 episodes, with the random-yaw recipe's settings (n-step returns, the averaged actor, the DDPG+AWR actor), saved and
 loaded mid-way with its online transitions."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -84,3 +86,32 @@ def test_the_warm_up_before_learning_starts_acts_with_the_models_policy_not_at_r
     np.testing.assert_allclose(online.actions[:150, 0], model.policy.scale_action(deterministic), atol=1e-6)
     model.learn(10, reset_num_timesteps=False)
     assert model._n_updates == 10  # then one gradient step per env step, from the online transitions only
+
+
+def test_a_loaded_model_warns_when_its_dataset_id_holds_other_transitions_than_it_was_trained_on(tmp_path, monkeypatch):
+    """The same dataset id collected on two machines can hold different arrays: a model keeps the digest of the
+    transitions it was trained on, and refilling its buffer from the id elsewhere says so, on one line, where they
+    differ; on the same data it says nothing."""
+    from sb3_cql.data import CollectionSpec, collect_dataset, transitions_digest
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    for root, episodes in ((here, 1), (there, 2)):
+        monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
+        collect_dataset(CollectionSpec(n_episodes=episodes), progress_bar=False)
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(here))
+    model = IQL("MlpPolicy", "Panda-v0", dataset="sb3cql/Panda-v0/pid-v0", batch_size=32, policy_kwargs=TINY, seed=0)
+    assert model.data_sha256 == transitions_digest(model.replay_buffer)
+    model.save(tmp_path / "model")
+
+    same = IQL.load(tmp_path / "model", env=gym.make("Panda-v0"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert same.load_offline_data().size() == model.replay_buffer.size()
+    assert not [warning for warning in caught if "trained on" in str(warning.message)]
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(there))
+    elsewhere = IQL.load(tmp_path / "model", env=gym.make("Panda-v0"))
+    with pytest.warns(UserWarning, match=r"sb3cql/Panda-v0/pid-v0 \(transitions sha256 \w{12}\) are not those this model "
+                                         rf"was trained on \({model.data_sha256[:12]}\)") as caught:  # fmt: skip
+        assert elsewhere.load_offline_data().size() > model.replay_buffer.size()
+    assert len(caught) == 1 and "\n" not in str(caught[0].message)
+    assert elsewhere.data_sha256 == model.data_sha256  # it still names the data it was first trained on

@@ -187,6 +187,7 @@ class OfflineSAC(OnlineFineTuning):
         self.deterministic_rollouts = deterministic_rollouts
         self.actor_learning_rate = actor_learning_rate
         self._fill_on_setup = True  # load() turns it off: a loaded model does not reload its data
+        self.data_sha256: str | None = None  # the digest of the offline transitions it first trained on
         policy_kwargs = dict(policy_kwargs or {})
         mlp = policy in ("MlpPolicy", self.policy_aliases["MlpPolicy"]) and "features_extractor_class" not in policy_kwargs
         if normalize_observations and not mlp:
@@ -308,6 +309,7 @@ class OfflineSAC(OnlineFineTuning):
 
         buffer = load_replay_buffer(dataset, self.observation_space, self.action_space, self._data_observation_space(),
                                     self.device, self.replay_buffer_class, self.replay_buffer_kwargs)  # fmt: skip
+        self._check_same_data(buffer, dataset)
         self.replay_buffer = self._read_as_trained(buffer) if buffer is dataset else buffer
         size = buffer.size()
         if self.normalize_observations and isinstance(self.actor.features_extractor, NormalizedFlatten):
@@ -316,6 +318,25 @@ class OfflineSAC(OnlineFineTuning):
             for module in self.policy.modules():  # the actor's, the critics' and any other network's (IQL's value)
                 if isinstance(module, NormalizedFlatten):
                     module.set_statistics(mean, std)
+
+    def _check_same_data(self, buffer: ReplayBuffer, dataset: MinariDataset | str | ReplayBuffer) -> None:
+        """Record the digest of the transitions the model first trains on (``data_sha256``, saved with it); warn, on one
+        line, where a loaded model's data, reloaded from its dataset id, are not those: the same id collected on
+        another machine can hold other arrays, and fine-tuning would mix those into its batches unseen."""
+        from sb3_cql.data.digest import transitions_digest
+
+        digest = transitions_digest(buffer)
+        if self.data_sha256 is None:
+            self.data_sha256 = digest
+        elif digest != self.data_sha256:
+            name = dataset if isinstance(dataset, str) else type(dataset).__name__
+            warnings.warn(
+                f"the offline data loaded from {name} (transitions sha256 {digest[:12]}) are not those this model was "
+                f"trained on ({self.data_sha256[:12]}): it trains on these; to train on the same data, copy the dataset "
+                "from where the model was trained (Minari's datasets folder)",
+                UserWarning,
+                stacklevel=2,
+            )
 
     def _read_as_trained(self, buffer: ReplayBuffer) -> ReplayBuffer:
         """A buffer of the user's through the views this model trains with: images as the policy sees them, SB3's

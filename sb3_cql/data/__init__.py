@@ -3,7 +3,8 @@
 One role a module, each importing only those below it:
 
 - :mod:`~sb3_cql.data.errors`: :class:`DatasetError`, the package's error;
-- :mod:`~sb3_cql.data.digest`: a dataset's arrays as one SHA-256 (:func:`arrays_digest`);
+- :mod:`~sb3_cql.data.digest`: a dataset's arrays, or a buffer's transitions, as one SHA-256 (:func:`arrays_digest`,
+  :func:`transitions_digest`);
 - :mod:`~sb3_cql.data.ids`: dataset ids and paths, and the behaviour policies' names;
 - :mod:`~sb3_cql.data.store`: a dataset on disk (its files and lock, recovery, publication) and its loading;
 - :mod:`~sb3_cql.data.spaces`: whether a dataset or a model fits an env (:func:`check_spaces`);
@@ -20,7 +21,7 @@ as do the policy names (read from the tasks), so that loading a dataset, and the
 simulator.
 """
 
-from sb3_cql.data.digest import arrays_digest
+from sb3_cql.data.digest import arrays_digest, transitions_digest
 from sb3_cql.data.errors import DatasetError
 from sb3_cql.data.ids import DEFAULT_NOISE, NAMESPACE, dataset_id, dataset_path
 from sb3_cql.data.loading import fill_replay_buffer, load_replay_buffer, resolve_dataset
@@ -61,4 +62,5 @@ __all__ = [
     "mix_datasets",
     "resolve_dataset",
     "standard_collection",
+    "transitions_digest",
 ]
