@@ -243,6 +243,8 @@ def test_mix_combines_datasets():
     mixed = mix_datasets(["sb3cql/Panda-v0/pid-v0", "sb3cql/Panda-v0/random-v0"], "sb3cql/Panda-v0/mixed-v0")
     assert mixed.total_episodes == 3
     assert mixed.storage.metadata["success_rate"] == pytest.approx(2 / 3)
+    assert mixed.storage.metadata["arrays_sha256"] == arrays_digest(mixed)  # its own arrays', as a collection's
+    assert json.loads(mixed.storage.metadata["packages"])["numpy"] == np.__version__
     with pytest.raises(FileExistsError):
         mix_datasets(["sb3cql/Panda-v0/pid-v0"], "sb3cql/Panda-v0/mixed-v0")
 

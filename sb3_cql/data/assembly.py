@@ -10,6 +10,7 @@ import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import gymnasium as gym
@@ -147,7 +148,10 @@ def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False
         storage = MinariStorage.new(files.assembling / "data", env_spec=env_spec, data_format="hdf5")
         for source in sources:
             storage.update_from_storage(source.storage)
-        successes = [bool(e["rewards"][-1] > 0) for e in storage.get_episodes(range(storage.total_episodes))]
+        successes, digest = [], hashlib.sha256()
+        for episode in storage.get_episodes(range(storage.total_episodes)):
+            successes.append(bool(episode["rewards"][-1] > 0))
+            update_digest(digest, SimpleNamespace(**episode))
         storage.update_metadata(
             {
                 "dataset_id": dataset_id,
@@ -155,6 +159,8 @@ def mix_datasets(source_ids: list[str], dataset_id: str, overwrite: bool = False
                 "combined_datasets": list(source_ids),
                 "description": f"the datasets {', '.join(source_ids)} combined",
                 "success_rate": float(np.mean(successes)),
+                "arrays_sha256": digest.hexdigest(),
+                "packages": package_versions(),
                 **{key: sources[0].storage.metadata[key] for key in METADATA_OF_THE_FIRST},
             }
         )
