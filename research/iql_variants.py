@@ -4,7 +4,7 @@
   (SHARSA's values; *The data's noisy actions hide the wrist's turn from every critic* and the runs named ``-bce``).
 - :class:`DDPGBCIQL`: the actor by DDPG+BC, the anchor to the data unweighted (TD3+BC's extraction; the runs named
   ``iql-yaw-ddpgbc``).
-- :class:`CappedIQL`: the TD targets held below ``target_ceiling`` as ``target_floor`` holds them above (fine-tuning
+- :class:`CappedIQL`: IQL with ``target_ceiling`` 1.0, the TD targets held at most the greatest return (fine-tuning
   past the climb of the critics' values, ``research/studies/finetune-iql``; through the zoo as ``iql_capped``,
   ``research/zoo_train.py``).
 - :class:`OfflineAnchorIQL`: :class:`CappedIQL` whose actor's anchor reads only the offline half of a fine-tuning
@@ -111,26 +111,13 @@ class DDPGBCIQL(IQL):
 
 
 class CappedIQL(IQL):
-    """IQL with every TD target held at most ``target_ceiling``, as ``target_floor`` holds it at least: with a reward of
-    1 that ends the episode and 0 elsewhere no return exceeds 1, and a target above it can only be the critics' own
-    over-estimate fed back. Loads an :class:`~sb3_cql.IQL` model (``CappedIQL.load(path, target_ceiling=1.0)``).
-
-    :param target_ceiling: the greatest TD target, in the critics' units (a number).
+    """:class:`~sb3_cql.IQL` with ``target_ceiling`` 1.0 unless given: every TD target at most the greatest return of a
+    reward of 1 that ends the episode and 0 elsewhere. The studies' name for it (``iql_capped`` in the zoo), under which
+    their models were saved; the keyword itself is IQL's.
     """
 
-    def __init__(self, *args: Any, target_ceiling: float = 1.0, **kwargs: Any) -> None:
-        self.target_ceiling = target_ceiling
-        super().__init__(*args, **kwargs)
-
-    def _check_settings(self) -> None:
-        super()._check_settings()
-        if not isinstance(self.target_ceiling, (int, float)) or not th.isfinite(th.tensor(float(self.target_ceiling))):
-            raise SettingError(f"target_ceiling must be a finite number, got {self.target_ceiling!r}")
-        if self.target_floor is not None and self.target_ceiling < self.target_floor:
-            raise SettingError(f"target_ceiling {self.target_ceiling} is below target_floor {self.target_floor}")
-
-    def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
-        return super().compute_target(replay_data, discounts).clamp(max=self.target_ceiling)
+    def __init__(self, *args: Any, target_ceiling: float | None = 1.0, **kwargs: Any) -> None:
+        super().__init__(*args, target_ceiling=target_ceiling, **kwargs)
 
 
 class OfflineAnchorIQL(CappedIQL):

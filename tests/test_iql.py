@@ -407,6 +407,25 @@ def test_a_target_floor_raises_the_targets_below_it_and_leaves_the_others():
     th.testing.assert_close(raised, 5.0 * batch.discounts)
 
 
+def test_a_target_ceiling_lowers_the_targets_above_it_and_leaves_the_others():
+    """The floor's mirror: at a value of +5 the targets, 5 times the samples' discounts, rise above the ceiling of 1,
+    which lowers them to it; at -5 they stay r + discount * V(s'), and the floor and the ceiling act together."""
+    model = pendulum_iql(gamma=0.999, n_steps=3, reward_scale=0.0, target_ceiling=1.0)
+    batch = model.replay_buffer.sample(64)
+    last = model.value_net.v_net[-1]
+    with th.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(5.0)
+        lowered = model.compute_target(batch, batch.discounts)
+        last.bias.fill_(-5.0)
+        kept = model.compute_target(batch, batch.discounts)
+        model.target_floor = 0.0
+        raised = model.compute_target(batch, batch.discounts)
+    assert th.equal(lowered, th.ones_like(lowered))
+    th.testing.assert_close(kept, -5.0 * batch.discounts)
+    assert th.equal(raised, th.zeros_like(raised))
+
+
 def test_calibrated_cql_at_gamma_0_999_bounds_by_returns_in_the_same_gamma_and_rewards():
     env = spaces_env(spaces.Box(-1.0, 1.0, (1,), np.float32), spaces.Box(-1.0, 1.0, (1,), np.float32))
     buffer = ReplayBuffer(20, env.observation_space, env.action_space)
@@ -440,6 +459,8 @@ def test_a_diverging_update_stops_with_one_line_before_the_step():
         ({"actor_bc_weight": -1.0}, r"actor_bc_weight must be a (finite )?number >= 0, got -1.0"),
         ({"target_floor": float("-inf")}, "target_floor must be a finite number, got -inf"),
         ({"target_floor": "0"}, "target_floor must be a finite number, got '0'"),
+        ({"target_ceiling": float("nan")}, "target_ceiling must be a finite number, got nan"),
+        ({"target_floor": 1.0, "target_ceiling": 0.0}, "target_ceiling 0.0 is below target_floor 1.0"),
         ({"actor_average_tau": 0.0}, r"actor_average_tau must be a number in \(0, 1\] or None, got 0.0"),
         ({"actor_average_tau": "0.01"}, r"actor_average_tau must be a number in \(0, 1\] or None, got '0.01'"),
     ],

@@ -59,6 +59,9 @@ class IQL(OfflineSAC):
     :param q_agg: how the target twins combine into the value's target and the advantages: ``"min"`` (the
         references') or ``"mean"``.
     :param target_floor: the least TD target, in the critics' units; ``None`` (the references'): no floor.
+    :param target_ceiling: the greatest TD target, in the critics' units: the greatest return the rewards allow (1 for
+        a reward of 1 that ends the episode and 0 elsewhere), so that the critics' own over-estimates, fed back through
+        the value, cannot lift the values past it; ``None`` (the references'): no ceiling.
     :param actor_average_tau: act with an exponential moving average of the actor, moved towards it by this Polyak
         coefficient after each of its steps (saved with the model); ``None`` (the references'): act with the actor.
     :param normalize_observations: z-score the observations with the dataset's statistics inside the policy;
@@ -87,6 +90,7 @@ class IQL(OfflineSAC):
         actor_bc_weight: float = 0.4,
         q_agg: str = "min",
         target_floor: float | None = None,
+        target_ceiling: float | None = None,
         actor_average_tau: float | None = None,
         normalize_observations: bool | None = False,
         **kwargs: Any,
@@ -98,6 +102,7 @@ class IQL(OfflineSAC):
         self.actor_bc_weight = actor_bc_weight
         self.q_agg = q_agg
         self.target_floor = target_floor
+        self.target_ceiling = target_ceiling
         self.actor_average_tau = actor_average_tau
         entropy = sorted(set(kwargs) & set(ENTROPY_KEYWORDS))
         if entropy:
@@ -119,8 +124,11 @@ class IQL(OfflineSAC):
         check_non_negative([("temperature", self.temperature)])
         check_non_negative([("max_weight", self.max_weight)], strictly=True)
         check_non_negative([("actor_bc_weight", self.actor_bc_weight)])
-        if self.target_floor is not None:
-            check_finite([("target_floor", self.target_floor)])
+        floor, ceiling = self.target_floor, self.target_ceiling
+        bounds = (("target_floor", floor), ("target_ceiling", ceiling))
+        check_finite([(name, value) for name, value in bounds if value is not None])
+        if floor is not None and ceiling is not None and ceiling < floor:
+            raise SettingError(f"target_ceiling {ceiling!r} is below target_floor {floor!r}: the TD targets lie between them")
         tau = self.actor_average_tau
         if tau is not None and not (isinstance(tau, (int, float)) and not isinstance(tau, bool) and 0 < tau <= 1):
             raise SettingError(f"actor_average_tau must be a number in (0, 1] or None, got {tau!r}")
@@ -245,10 +253,13 @@ class IQL(OfflineSAC):
     # The critics.
 
     def compute_target(self, replay_data: ReplayBufferSamples, discounts: th.Tensor | float) -> th.Tensor:
-        """``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`), raised to ``target_floor``."""
+        """``rewards + (1 - dones) * discounts * V(s')`` (:meth:`critic_rewards`), raised to ``target_floor`` and
+        lowered to ``target_ceiling``."""
         next_values = self.state_values(replay_data.next_observations)
         target = self.critic_rewards(replay_data) + (1 - replay_data.dones) * discounts * next_values
-        return target if self.target_floor is None else target.clamp(min=self.target_floor)
+        if self.target_floor is None and self.target_ceiling is None:
+            return target
+        return target.clamp(min=self.target_floor, max=self.target_ceiling)
 
     def critic_loss(self, replay_data: ReplayBufferSamples, target_q_values: th.Tensor) -> th.Tensor:
         """Each critic's mean squared error to the TD target at the data's actions, summed (not SAC's halved)."""
