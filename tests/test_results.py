@@ -28,25 +28,25 @@ def test_the_committed_models_fit_in_the_repository():
     assert sum(path.stat().st_size for path in models) <= MAX_BYTES
 
 
-def record_of(path: Path) -> tuple[str, dict]:
-    """The task and record of a committed model: ``finetune-<task>-seed<N>.zip`` is the protocol's fine-tuning stage
-    (its record in ``results/finetune-<task>/records``), ``finetune-iql-<task>-seed<N>.zip`` the zoo's fine-tuning of
-    the random-yaw IQL model (its record in ``research/studies/finetune-iql/short-seed<N>``)."""
+#: The study of the zoo's fine-tuning runs from the random-yaw IQL model, a folder ``short-seed<N>`` a seed.
+FINETUNE_IQL = STUDIES_DIR / "finetune-iql"
+
+
+def record_of(path: Path) -> tuple[str, type, dict]:
+    """The task, class and record of a committed model: ``finetune-<task>-seed<N>.zip`` is the protocol's fine-tuning
+    stage (Cal-QL; its record in ``results/finetune-<task>/records``), ``finetune-iql-<task>-seed<N>.zip`` the zoo's
+    fine-tuning of the random-yaw IQL model (its record in ``research/studies/finetune-iql/short-seed<N>``)."""
     name, seed = path.stem.rsplit("-", 1)
     task = name.removeprefix("finetune-")
     if task.startswith("iql-"):
-        study = STUDIES_DIR / "finetune-iql" / f"short-{seed}"
-        return task.removeprefix("iql-"), json.loads((study / "record.json").read_text())
-    return task, json.loads(
-        (RESULTS / f"finetune-{task}" / "records" / "train" / f"cql-finetune-{task}-{seed}.json").read_text()
-    )
+        return task.removeprefix("iql-"), IQL, json.loads((FINETUNE_IQL / f"short-{seed}" / "record.json").read_text())
+    record = RESULTS / f"finetune-{task}" / "records" / "train" / f"cql-finetune-{task}-{seed}.json"
+    return task, CalQL, json.loads(record.read_text())
 
 
 @pytest.mark.parametrize("path", FINETUNED, ids=lambda path: path.stem)
 def test_a_committed_fine_tuned_model_loads_and_acts_in_its_task(path):
-    task, record = record_of(path)
-    # The protocol's fine-tuning was calibrated (Cal-QL); the zoo's from the random-yaw model is IQL's.
-    algorithm = IQL if "conf_file" in record else CalQL
+    task, algorithm, record = record_of(path)
     model = algorithm.load(path)
     assert type(model) is algorithm and model.num_timesteps == record["training_steps"]
     env = gym.make(task, **record["env_kwargs"])
@@ -61,7 +61,7 @@ def test_the_committed_iql_fine_tuned_model_was_trained_by_its_zoo_configuration
     """Every fine-tuning keyword of the shipped configuration is the model's, its evaluation record beside it covers
     100 episodes of each task, and it started from the committed random-yaw model."""
     path = RESULTS / "models" / "finetune-iql-PandaForce-v0-seed1.zip"
-    task, record = record_of(path)
+    task, _, record = record_of(path)
     config = yaml.safe_load((ROOT / record["conf_file"]).read_text())[task]
     model = IQL.load(path)
     for key in ("online_fraction", "online_buffer_size", "learning_starts", "train_freq", "gradient_steps",
@@ -71,7 +71,7 @@ def test_the_committed_iql_fine_tuned_model_was_trained_by_its_zoo_configuration
     assert record["env_kwargs"] == config["env_kwargs"]
     assert (ROOT / record["started_from"]).is_file() and f"-i {record['started_from']}" in record["command"]
     assert f"-n {record['training_steps']}" in record["command"] and f"--seed {record['seed']}" in record["command"]
-    evaluation = json.loads((STUDIES_DIR / "finetune-iql" / f"short-seed{record['seed']}" / "final-eval.json").read_text())
+    evaluation = json.loads((FINETUNE_IQL / f"short-seed{record['seed']}" / "final-eval.json").read_text())
     assert {name: len(task_record["episodes"]) for name, task_record in evaluation["tasks"].items()} == {
         "PandaForce-v0": 100, "Panda-v0": 100, "PandaPerturbed-v0": 100,
     }  # fmt: skip
