@@ -251,7 +251,21 @@ class WorkerPool:
 
     def _kill(self) -> None:
         """Kill the workers, then wait for the executor to fail the pending futures and close its pipes. No future is
-        cancelled first: Python 3.11's executor thread raises InvalidStateError on one when it finds its workers gone."""
-        for process in list((getattr(self._executor, "_processes", None) or {}).values()):
+        cancelled first: Python 3.11's executor thread raises InvalidStateError on one when it finds its workers gone.
+
+        A worker killed halfway through sending a result (one larger than a pipe's buffer) would leave the executor's
+        thread waiting for the rest of it forever, since this process holds the results pipe's writing end too: once
+        the workers are dead, that end is closed here, and the thread reads the end of the pipe instead. Likewise a
+        task that no dead worker will read no longer holds up the shutdown."""
+        processes = list((getattr(self._executor, "_processes", None) or {}).values())
+        for process in processes:
             process.kill()
+        for process in processes:
+            process.join()
+        result_queue = getattr(self._executor, "_result_queue", None)
+        if result_queue is not None:
+            result_queue._writer.close()
+        call_queue = getattr(self._executor, "_call_queue", None)
+        if call_queue is not None:
+            call_queue.cancel_join_thread()
         self._executor.shutdown(wait=True)
