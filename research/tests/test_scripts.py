@@ -754,3 +754,18 @@ def test_finetune_resumable_counts_segments_and_refuses_a_second_process_on_the_
     assert done.returncode == 0, done.stderr
     assert "30000 steps done; final model" in done.stdout
     assert (tmp_path / "final.zip").read_bytes() == b"PandaForce-v0_2"
+
+
+def test_arm_exploration_noise_explores_in_the_arm_joints_only():
+    from research.exploration import ArmExplorationNoise
+
+    env = gym.make("Panda-v0", action_mode="delta")
+    model = IQL("MlpPolicy", env, dataset=random_rollouts(env, 50), seed=0, batch_size=8, policy_kwargs={"net_arch": [32]})
+    callback = ArmExplorationNoise(pink_std=0.5)
+    callback.init_callback(model)
+    draws = np.array([model.action_noise() for _ in range(200)])
+    assert draws.shape == (200, ACTION_DIM)
+    assert (draws[:, 7:] == 0).all()  # the two fingers
+    assert (draws[:, :7].std(axis=0) > 0.05).all()  # each arm joint explores
+    model.action_noise.reset()  # a new episode's sequence, masked as the first
+    assert (model.action_noise()[7:] == 0).all()
