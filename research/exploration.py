@@ -30,8 +30,8 @@ class MaskedActionNoise(ActionNoise):
     def __call__(self) -> np.ndarray:
         return np.where(self.mask, self.noise(), 0.0)
 
-    def reset(self) -> None:
-        self.noise.reset()
+    def reset(self, **kwargs) -> None:
+        self.noise.reset(**kwargs)
 
 
 class ArmExplorationNoise(ExplorationNoise):
@@ -39,8 +39,6 @@ class ArmExplorationNoise(ExplorationNoise):
 
     def _init_callback(self) -> None:
         super()._init_callback()
-        if self.training_env.num_envs != 1:
-            raise ValueError("ArmExplorationNoise takes one env")
         mask = np.arange(self.model.action_space.shape[0]) < len(ARM_JOINTS)
         self.model.action_noise = MaskedActionNoise(self.model.action_noise, mask)
         print(f"Exploration noise on the action dimensions {np.flatnonzero(mask).tolist()} only")
